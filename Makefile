@@ -1,0 +1,27 @@
+# Two commands on a fresh machine with python3 and make: `make demo` and `make test`.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed-stamp
+
+.PHONY: install demo test bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+install: $(STAMP)  ## create .venv and install rollbot_oc with its test tools
+
+demo: $(STAMP)  ## the main job: writes figures and JSON into out/
+	$(BIN)/rollbot-oc demo --out out
+
+test: $(STAMP)  ## the whole test suite
+	$(BIN)/python -m pytest -n 2 --durations=15
+
+bench: $(STAMP)  ## benchmarks (medians over repeated runs)
+	for script in benchmarks/*.py; do $(BIN)/python $$script || exit 1; done
+
+clean:
+	rm -rf $(VENV) out build *.egg-info

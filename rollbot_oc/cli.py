@@ -1,0 +1,135 @@
+"""The ``rollbot-oc`` command line.
+
+Every subcommand that computes takes ``--params FILE`` (TOML, see
+``rollbot_oc.params``).  ``--json`` prints machine-readable JSON on stdout
+(SI units, radians).  A user mistake (bad argument, bad file, value out of
+range) prints one line ``rollbot-oc: error: ...`` on stderr and exits with
+status 2; a computation that fails (a solver that does not converge) exits
+with status 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from rollbot_oc.outputs import to_json, write_json
+from rollbot_oc.params import load_params
+
+__all__ = ["main", "build_parser"]
+
+
+class UsageError(Exception):
+    """A mistake in the command line or its files."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, not the whole usage block
+        raise UsageError(f"{self.prog}: {message} (see --help)")
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return value
+
+
+def _add_params(p):
+    p.add_argument("--params", metavar="FILE", help="TOML parameter file (keys in the README); "
+                   "default: the paper's prototype")
+
+
+def _params_with_slope(args):
+    params = load_params(args.params)
+    if getattr(args, "slope_deg", None) is not None:
+        params = params.replace(slope=math.radians(args.slope_deg))
+    return params
+
+
+def _cmd_openloop(args) -> int:
+    from rollbot_oc.experiments import open_loop_run
+    from rollbot_oc.plots import plot_top_view
+
+    params = _params_with_slope(args)
+    rows = []
+    for omega0 in args.omega0:
+        measured, result = open_loop_run(omega0, params, duration=args.duration, ramp_rate=args.ramp_rate)
+        rows.append(measured.to_dict())
+        if args.out:
+            out = Path(args.out)
+            plot_top_view(result, title=f"open loop, omega0 = {omega0:g} rad/s",
+                          path=out / f"openloop_{omega0:g}.png")
+    if args.out:
+        write_json(Path(args.out) / "openloop.json", {"params": params.to_file_dict(), "runs": rows})
+    if args.json:
+        print(to_json(rows))
+    else:
+        print(f"{'omega0':>8} {'R0 (m)':>9} {'Omega':>9} {'xi (deg)':>9} {'settled':>8}")
+        for r in rows:
+            print(f"{r['omega0']:8.3f} {r['R0']:9.4f} {r['Omega']:9.4f} {math.degrees(r['xi']):9.3f} "
+                  f"{str(r['settled']):>8}")
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    """The main job (grows with the toolkit): open-loop runs with plots and JSON in ``--out``."""
+    args.omega0, args.duration, args.ramp_rate, args.json = [1.0, 3.0, 6.0], None, 0.5, False
+    args.slope_deg = None
+    args.out = args.out or "out"
+    status = _cmd_openloop(args)
+    print(f"wrote {args.out}/openloop.json and top-view plots")
+    return status
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``rollbot-oc`` (subcommands and their options)."""
+    parser = _Parser(prog="rollbot-oc", description="Model, analyse and control Rollbot, the spherical robot "
+                     "driven by a single motor. SI units and radians unless an option says otherwise.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+
+    p = sub.add_parser("openloop", help="the paper's open-loop experiment: constant driving speeds, "
+                       "measured revolving radius, rate and tilt")
+    p.add_argument("--omega0", type=_finite, nargs="+", required=True, metavar="W",
+                   help="driving speeds, rad/s, in (0, max_speed]")
+    _add_params(p)
+    p.add_argument("--slope-deg", type=_finite, metavar="D", help="floor slope, degrees (overrides the file)")
+    p.add_argument("--duration", type=_finite, metavar="T",
+                   help="run length, s (default: ramp, 40 s settling, then at least two revolutions)")
+    p.add_argument("--ramp-rate", type=_finite, default=0.5, metavar="A",
+                   help="driving-speed ramp from rest, rad/s^2 (default 0.5)")
+    p.add_argument("--out", metavar="DIR", help="write top-view plots (PNG) and openloop.json here")
+    p.add_argument("--json", action="store_true", help="print a JSON list of measurements")
+    p.set_defaults(run=_cmd_openloop)
+
+    p = sub.add_parser("demo", help="the main job: compute, simulate and write a report folder")
+    _add_params(p)
+    p.add_argument("--out", metavar="DIR", default="out", help="report folder (default out/)")
+    p.set_defaults(run=_cmd_demo)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Run ``rollbot-oc`` with ``argv``; returns the exit status."""
+    try:
+        args = build_parser().parse_args(argv)
+        return args.run(args)
+    except UsageError as exc:
+        print(f"rollbot-oc: error: {exc}", file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        print(f"rollbot-oc: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("rollbot-oc: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

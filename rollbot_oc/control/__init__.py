@@ -1,0 +1,1 @@
+"""Controllers that close the loop around the plant: the paper's PID baseline, OCP and NMPC."""

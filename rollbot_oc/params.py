@@ -1,0 +1,246 @@
+"""Physical parameters of Rollbot, their validation and their TOML files.
+
+Defaults are the prototype of the paper (Table "Physical parameters").  Inside
+the toolkit every quantity is SI with angles in radians; the TOML file keys
+that hold angles end in ``_deg`` and are in degrees.
+
+TOML schema (every key optional; a missing key keeps its default)::
+
+    R             = 0.12    # shell outer radius, m
+    M_s           = 0.840   # shell mass, kg
+    m_b           = 0.040   # mass of the damping beads, kg (added to the shell)
+    I             = 0.0053  # shell moment of inertia (isotropic), kg m^2
+    phi_deg       = 45.0    # angle between the motor axis and the pendulum arm, deg
+    r0            = 0.093   # distance from shell centre to pendulum mass, m
+    m             = 0.306   # pendulum mass, kg
+    k0            = ...     # rotational damping, N m s; default 0.4 1/s * M * R^2
+    g             = 9.81    # gravity, m/s^2
+    mu            = 0.5     # friction coefficient between shell and floor
+    max_torque    = ...     # motor torque limit, N m; default r0 * m * g
+    max_speed     = 9.42..  # driving-speed limit, rad/s; default 3 pi
+    max_accel     = 30.0    # motor acceleration limit, rad/s^2
+    slope_deg     = 0.0     # floor inclination, deg
+    slope_dir_deg = 0.0     # azimuth of the downhill direction in the floor frame, deg
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rollbot_oc.outputs import atomic_write_text
+
+__all__ = ["RollbotParams", "PARAM_VECTOR_FIELDS", "load_params", "save_params"]
+
+# Order of the numeric parameter vector ``p`` fed to every symbolic Function.
+PARAM_VECTOR_FIELDS = (
+    "R", "M", "I", "phi", "r0", "m", "k0", "g", "mu",
+    "max_torque", "max_speed", "max_accel", "slope", "slope_dir",
+)
+
+# File key -> (attribute, scale from file units to SI).
+_FILE_KEYS = {
+    "R": ("R", 1.0),
+    "M_s": ("M_s", 1.0),
+    "m_b": ("m_b", 1.0),
+    "I": ("I", 1.0),
+    "phi_deg": ("phi", math.pi / 180.0),
+    "r0": ("r0", 1.0),
+    "m": ("m", 1.0),
+    "k0": ("k0", 1.0),
+    "g": ("g", 1.0),
+    "mu": ("mu", 1.0),
+    "max_torque": ("max_torque", 1.0),
+    "max_speed": ("max_speed", 1.0),
+    "max_accel": ("max_accel", 1.0),
+    "slope_deg": ("slope", math.pi / 180.0),
+    "slope_dir_deg": ("slope_dir", math.pi / 180.0),
+}
+
+_K0_RATE = 0.4  # 1/s, the paper's k0 = (0.4 1/s) M R^2
+
+
+@dataclass(frozen=True)
+class RollbotParams:
+    """Physical parameters of a single-pendulum spherical robot (SI units).
+
+    Parameters
+    ----------
+    R : float
+        Outer radius of the shell, m.
+    M_s : float
+        Mass of the shell, kg.
+    m_b : float
+        Mass of the glass beads that damp the shell, kg.  The equations use the
+        shell body mass ``M = M_s + m_b``.
+    I : float
+        Moment of inertia of the shell about any axis through its centre,
+        kg m^2 (the shell is isotropic).
+    phi : float
+        Angle between the motor axis and the line from the shell centre to the
+        pendulum mass, rad, in (0, pi/2).
+    r0 : float
+        Distance from the shell centre to the pendulum mass, m, below ``R``.
+    m : float
+        Pendulum (point) mass, kg.
+    k0 : float or None
+        Rotational damping coefficient of the shell, N m s (torque
+        ``-k0 * omega``).  ``None`` selects the paper's ``0.4 1/s * M * R^2``.
+    g : float
+        Gravitational acceleration, m/s^2.
+    mu : float
+        Coulomb friction coefficient between shell and floor (dimensionless).
+        The default 0.5 is a typical value for a hard plastic shell on a lab
+        floor; the paper does not report one.
+    max_torque : float or None
+        Motor torque limit, N m.  ``None`` selects the paper's
+        ``M_max = r0 * m * g`` (0.28 N m for the prototype).
+    max_speed : float
+        Driving-speed limit of the motor, rad/s (paper: 3 pi).
+    max_accel : float
+        Motor acceleration limit, rad/s^2 (a property of the motor driver; the
+        paper does not report one).
+    slope : float
+        Inclination of the floor, rad, in [0, pi/6].
+    slope_dir : float
+        Azimuth of the downhill direction, measured in the floor plane from the
+        floor frame's x axis, rad.
+    """
+
+    R: float = 0.12
+    M_s: float = 0.840
+    m_b: float = 0.040
+    I: float = 0.0053
+    phi: float = math.pi / 4
+    r0: float = 0.093
+    m: float = 0.306
+    k0: float | None = None
+    g: float = 9.81
+    mu: float = 0.5
+    max_torque: float | None = None
+    max_speed: float = 3 * math.pi
+    max_accel: float = 30.0
+    slope: float = 0.0
+    slope_dir: float = 0.0
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if value is None and f.name in ("k0", "max_torque"):
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+                raise ValueError(f"parameter {f.name}: expected a number, got {value!r}")
+            if not math.isfinite(value):
+                raise ValueError(f"parameter {f.name}: {value!r} is not finite")
+            object.__setattr__(self, f.name, float(value))
+        if self.k0 is None:
+            object.__setattr__(self, "k0", _K0_RATE * (self.M_s + self.m_b) * self.R**2)
+        if self.max_torque is None:
+            object.__setattr__(self, "max_torque", self.r0 * self.m * self.g)
+        self._validate()
+
+    def _validate(self):
+        def check(name, ok, valid):
+            if not ok:
+                raise ValueError(f"parameter {name} = {getattr(self, name)!r} is out of range: valid is {valid}")
+
+        for name in ("R", "M_s", "I", "r0", "m", "g", "max_torque", "max_speed", "max_accel"):
+            check(name, getattr(self, name) > 0, "> 0")
+        for name in ("m_b", "k0", "mu"):
+            check(name, getattr(self, name) >= 0, ">= 0")
+        check("phi", 0 < self.phi < math.pi / 2, "(0, pi/2) rad, i.e. phi_deg in (0, 90)")
+        check("r0", self.r0 < self.R, f"(0, R) = (0, {self.R}) m: the mass is inside the shell")
+        check("slope", 0 <= self.slope <= math.pi / 6, "[0, pi/6] rad, i.e. slope_deg in [0, 30]")
+
+    @property
+    def M(self) -> float:
+        """Shell body mass used in the equations, ``M_s + m_b``, kg."""
+        return self.M_s + self.m_b
+
+    @property
+    def total_mass(self) -> float:
+        """Mass of the whole robot, ``M_s + m_b + m``, kg."""
+        return self.M + self.m
+
+    def vector(self) -> np.ndarray:
+        """The numeric parameter vector ``p`` in the order of ``PARAM_VECTOR_FIELDS``."""
+        return np.array([float(getattr(self, name)) for name in PARAM_VECTOR_FIELDS])
+
+    def replace(self, **changes) -> "RollbotParams":
+        """A copy with some fields changed (SI units), validated again.
+
+        ``k0`` and ``max_torque`` keep their current values unless given; pass
+        ``k0=None`` to recompute the paper's default from the new M and R.
+        """
+        return dataclasses.replace(self, **changes)
+
+    def to_file_dict(self) -> dict[str, float]:
+        """The parameters under their TOML keys, in file units (degrees for ``_deg``)."""
+        return {key: getattr(self, attr) / scale for key, (attr, scale) in _FILE_KEYS.items()}
+
+    @classmethod
+    def from_file_dict(cls, data: dict, source: str = "parameters") -> "RollbotParams":
+        """Build parameters from a mapping of TOML keys (file units), defaults elsewhere.
+
+        Raises
+        ------
+        ValueError
+            On an unknown key (listing the valid ones), a non-number or a value
+            out of its range.
+        """
+        unknown = sorted(set(data) - set(_FILE_KEYS))
+        if unknown:
+            raise ValueError(
+                f"{source}: unknown key(s) {', '.join(unknown)}; valid keys are {', '.join(_FILE_KEYS)}"
+            )
+        kwargs = {}
+        for key, value in data.items():
+            attr, scale = _FILE_KEYS[key]
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"{source}: key {key} = {value!r} must be a number")
+            kwargs[attr] = value * scale
+        return cls(**kwargs)
+
+
+def load_params(path: str | Path | None) -> RollbotParams:
+    """Load parameters from a TOML file; ``None`` gives the paper's prototype.
+
+    Parameters
+    ----------
+    path : str, Path or None
+        TOML file with any subset of the documented keys, at top level or in
+        a ``[params]`` table.
+
+    Returns
+    -------
+    RollbotParams
+
+    Raises
+    ------
+    ValueError
+        If the file is missing, is not valid TOML, or holds a bad key or value.
+    """
+    if path is None:
+        return RollbotParams()
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"parameter file {path} does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"parameter file {path} is not valid TOML: {exc}") from None
+    if "params" in data and isinstance(data["params"], dict):
+        data = data["params"]
+    return RollbotParams.from_file_dict(data, source=str(path))
+
+
+def save_params(params: RollbotParams, path: str | Path) -> None:
+    """Write parameters to a TOML file (all keys, file units), atomically."""
+    lines = ["# Rollbot parameters (rollbot_oc); SI units, angles in degrees for *_deg keys"]
+    lines += [f"{key} = {value!r}" for key, value in params.to_file_dict().items()]
+    atomic_write_text(Path(path), "\n".join(lines) + "\n")

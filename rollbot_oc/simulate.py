@@ -1,0 +1,547 @@
+"""The plant: full nonlinear simulation of Rollbot with a motor's limits and a sloped floor.
+
+The plant advances in control periods ``dt`` (default 0.01 s, the 100 Hz of
+the paper's motion capture).  Within a period the commanded motor
+acceleration is held (zero-order hold) and the full equations of motion
+(``dynamics``) are integrated by fixed-step RK4 with ``substeps`` steps, or by
+CVODES for reference accuracy.  RK4 is the default because the right-hand side
+is smooth within a period (the command is held), so the method keeps its
+fourth order, and a fixed step makes a period one cheap, deterministic CasADi
+call; ``tests/test_simulate.py`` checks it against CVODES at tight tolerance.
+
+Motor model.  The controller commands either a driving speed or an
+acceleration.  A speed command ``v`` becomes the acceleration that reaches it
+by the end of the period, ``(v - theta_dot) / dt`` (a stiff speed loop, as a
+BLDC driver has).  The acceleration is then clipped so the driving speed
+stays within ``max_speed`` at the end of the period and within
+``max_accel``, and, continuously inside the period, to what ``max_torque``
+can deliver (``SymbolicModel.accel_bounds``): the motor saturates, it does
+not fail.
+
+Contact.  The equations assume the shell stays on the floor without slipping.
+The simulator evaluates the no-jump margin (normal force) and the no-slide
+margin (friction cone) at every step; where one turns negative the model no
+longer describes the robot, so the event is recorded and, by default, the run
+stops there rather than returning a wrong trajectory.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import casadi as ca
+import numpy as np
+
+from rollbot_oc.dynamics import (
+    NU, NW, NX, OMEGA, POS, QUAT, STATE_NAMES, THETA, THETA_DOT, RollbotModel, symbolic_model,
+)
+from rollbot_oc.fastcall import FastFunction
+from rollbot_oc.outputs import save_npz
+from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
+from rollbot_oc.rotations import quat_multiply_np
+
+__all__ = [
+    "Observation", "Command", "Controller", "Sensor", "Event", "SimulationResult",
+    "plant_step", "simulate", "motor_axis", "heading",
+]
+
+# Layout of the per-step diagnostics the plant returns with each step.
+DIAG_NAMES = ("theta_ddot", "motor_torque", "Nx", "Ny", "Nz", "no_jump_margin", "no_slide_margin")
+NDIAG = len(DIAG_NAMES)
+PARAM_INDEX = {name: i for i, name in enumerate(PARAM_VECTOR_FIELDS)}
+
+
+def _period_integrator(dt: float, substeps: int, method: str) -> ca.Function:
+    """``(x, a, p, w) -> x(dt)`` with the acceleration command ``a`` held over the period."""
+    sym = symbolic_model()
+    npar = sym.f.size1_in(2)
+    if method == "rk4":
+        x, a, p, w = ca.SX.sym("x", NX), ca.SX.sym("a", NU), ca.SX.sym("p", npar), ca.SX.sym("w", NW)
+        h = dt / substeps
+        xk = x
+        for _ in range(substeps):
+            k1 = sym.plant_rhs(xk, a, p, w)
+            k2 = sym.plant_rhs(xk + h / 2 * k1, a, p, w)
+            k3 = sym.plant_rhs(xk + h / 2 * k2, a, p, w)
+            k4 = sym.plant_rhs(xk + h * k3, a, p, w)
+            xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return ca.Function("rk4_period", [x, a, p, w], [xk])
+    if method == "cvodes":
+        x, a, p, w = ca.SX.sym("x", NX), ca.SX.sym("a", NU), ca.SX.sym("p", npar), ca.SX.sym("w", NW)
+        ode = {"x": x, "p": ca.vertcat(a, p, w), "ode": sym.plant_rhs(x, a, p, w)}
+        integ = ca.integrator("cvodes_period", "cvodes", ode, 0.0, dt, {"reltol": 1e-11, "abstol": 1e-11})
+        xm, am, pm, wm = ca.MX.sym("x", NX), ca.MX.sym("a", NU), ca.MX.sym("p", npar), ca.MX.sym("w", NW)
+        return ca.Function("cvodes_period", [xm, am, pm, wm], [integ(x0=xm, p=ca.vertcat(am, pm, wm))["xf"]])
+    raise ValueError(f"plant_step: method = {method!r}; valid are 'rk4', 'cvodes'")
+
+
+@functools.lru_cache(maxsize=None)
+def plant_step(dt: float = 0.01, substeps: int = 4, method: str = "rk4") -> ca.Function:
+    """The plant over one control period, as a cached CasADi Function.
+
+    Parameters
+    ----------
+    dt : float
+        Control period, s.
+    substeps : int
+        RK4 steps per period (``method="rk4"``).
+    method : {"rk4", "cvodes"}
+        Fixed-step RK4, or CVODES with relative and absolute tolerance 1e-11.
+
+    Returns
+    -------
+    casadi.Function
+        ``(x, a_cmd, p, w) -> (x_next, diag)``: state after ``dt`` for
+        commanded motor acceleration ``a_cmd`` (rad/s^2), and diagnostics at
+        the start of the period in the order of ``DIAG_NAMES`` (applied
+        acceleration, motor torque N m, ground force N, no-jump and no-slide
+        margins N).
+    """
+    if not dt > 0 or substeps < 1:
+        raise ValueError(f"plant_step: dt = {dt} must be > 0 s and substeps = {substeps} must be >= 1")
+    sym = symbolic_model()
+    npar = sym.f.size1_in(2)
+    integrate = _period_integrator(dt, substeps, method)
+    x, a_cmd, p, w = ca.MX.sym("x", NX), ca.MX.sym("a_cmd", NU), ca.MX.sym("p", npar), ca.MX.sym("w", NW)
+    max_speed = p[PARAM_INDEX["max_speed"]]
+    # Clip so that the driving speed ends the period within its limit.
+    a = ca.fmin(ca.fmax(a_cmd, (-max_speed - x[THETA_DOT]) / dt), (max_speed - x[THETA_DOT]) / dt)
+    xk = integrate(x, a, p, w)
+    q = xk[QUAT]
+    xk = ca.vertcat(xk[0:2], q / ca.norm_2(q), xk[6:])
+    bounds = sym.accel_bounds(x, p, w)
+    a_applied = ca.fmin(ca.fmax(a, bounds[0]), bounds[1])
+    diag = ca.vertcat(a_applied, sym.motor_torque(x, a_applied, p, w), sym.reaction(x, a_applied, p, w),
+                      sym.margins(x, a_applied, p, w))
+    step = ca.Function("plant_step", [x, a_cmd, p, w], [xk, diag], ["x", "a_cmd", "p", "w"], ["x_next", "diag"])
+    return step.expand() if method == "rk4" else step
+
+
+@functools.lru_cache(maxsize=None)
+def _speed_step(dt: float, substeps: int, method: str) -> ca.Function:
+    """``plant_step`` driven by a driving-speed command (rad/s) through the motor's speed loop."""
+    step = plant_step(dt, substeps, method)
+    x, v, p, w = ca.MX.sym("x", NX), ca.MX.sym("v", NU), ca.MX.sym("p", step.size1_in(2)), ca.MX.sym("w", NW)
+    x_next, diag = step(x, (v - x[THETA_DOT]) / dt, p, w)
+    fun = ca.Function("plant_speed_step", [x, v, p, w], [x_next, diag], ["x", "v_cmd", "p", "w"], ["x_next", "diag"])
+    return fun.expand() if method == "rk4" else fun
+
+
+def motor_axis(x) -> np.ndarray:
+    """Motor axis (body z') in the floor frame for a state (11,) or trajectory (11, N)."""
+    w, a, b, c = np.asarray(x, float)[QUAT]
+    s = 2.0 / (w * w + a * a + b * b + c * c)
+    return np.array([s * (a * c + b * w), s * (b * c - a * w), 1 - s * (a * a + b * b)])
+
+
+def heading(x) -> np.ndarray | float:
+    """Azimuth of the motor axis' horizontal projection, rad (the paper's gamma)."""
+    axis = motor_axis(x)
+    return np.arctan2(axis[1], axis[0])
+
+
+def tilt(x) -> np.ndarray | float:
+    """Angle between the motor axis and the floor normal, rad (the paper's xi)."""
+    axis = motor_axis(x)
+    return np.arccos(np.clip(axis[2] / np.linalg.norm(axis, axis=0), -1.0, 1.0))
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What a controller sees at one control step (SI units, floor frame).
+
+    Attributes
+    ----------
+    t : float
+        Time, s.
+    position : numpy.ndarray (2,)
+        Measured shell-centre position, m (motion capture).
+    quaternion : numpy.ndarray (4,)
+        Measured orientation, body -> floor, scalar first (motion capture).
+    omega : numpy.ndarray (3,)
+        Measured shell angular velocity, rad/s (a gyroscope, in the floor frame).
+    theta : float
+        Motor angle, rad (encoder).
+    theta_dot : float
+        Driving speed, rad/s (encoder).
+    """
+
+    t: float
+    position: np.ndarray
+    quaternion: np.ndarray
+    omega: np.ndarray
+    theta: float
+    theta_dot: float
+
+    @property
+    def state(self) -> np.ndarray:
+        """The observation as a model state vector (11,)."""
+        return np.concatenate([self.position, self.quaternion, self.omega, [self.theta, self.theta_dot]])
+
+    @property
+    def heading(self) -> float:
+        """Azimuth of the motor axis' horizontal projection, rad (the paper's gamma)."""
+        return float(heading(self.state))
+
+
+@dataclass(frozen=True)
+class Command:
+    """A controller's output: a driving-speed command or a motor-acceleration command.
+
+    Attributes
+    ----------
+    speed : float, optional
+        Target driving speed, rad/s; the motor's speed loop turns it into an
+        acceleration.
+    accel : float, optional
+        Motor acceleration, rad/s^2.
+    """
+
+    speed: float | None = None
+    accel: float | None = None
+
+    def __post_init__(self):
+        if (self.speed is None) == (self.accel is None):
+            raise ValueError("Command: give exactly one of speed (rad/s) and accel (rad/s^2)")
+        value = self.speed if self.speed is not None else self.accel
+        if not math.isfinite(value):
+            raise ValueError(f"Command: {'speed' if self.speed is not None else 'accel'} = {value!r} is not finite")
+
+    def acceleration(self, theta_dot: float, dt: float) -> float:
+        """The motor acceleration (rad/s^2) this command asks for over a period ``dt`` (s)."""
+        return self.accel if self.accel is not None else (self.speed - theta_dot) / dt
+
+
+class Controller(Protocol):
+    """Interface every controller implements (PID baseline, NMPC, open-loop schedules)."""
+
+    def reset(self) -> None:
+        """Forget any internal state before a new run."""
+
+    def __call__(self, obs: Observation) -> Command:
+        """Return the command for the next control period from an observation."""
+
+
+@dataclass
+class Sensor:
+    """Measurement model: Gaussian noise and a latency, seeded for reproducibility.
+
+    Parameters
+    ----------
+    position_noise : float
+        Standard deviation of the position noise, m.
+    angle_noise : float
+        Standard deviation of the orientation noise (a small random rotation), rad.
+    gyro_noise : float
+        Standard deviation of the angular-velocity noise, rad/s.
+    speed_noise : float
+        Standard deviation of the driving-speed noise, rad/s.
+    latency : int
+        Number of control periods between measuring and the controller seeing it.
+    seed : int
+        Seed of the noise generator.
+    """
+
+    position_noise: float = 0.0
+    angle_noise: float = 0.0
+    gyro_noise: float = 0.0
+    speed_noise: float = 0.0
+    latency: int = 0
+    seed: int = 0
+
+    def __post_init__(self):
+        for name in ("position_noise", "angle_noise", "gyro_noise", "speed_noise"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"Sensor: {name} = {value!r} must be finite and >= 0")
+        if int(self.latency) != self.latency or self.latency < 0:
+            raise ValueError(f"Sensor: latency = {self.latency!r} must be a whole number of periods >= 0")
+        self.rng = np.random.default_rng(self.seed)
+
+    def measure(self, t: float, x: np.ndarray) -> Observation:
+        """A noisy observation of state ``x`` (11,) at time ``t`` (s)."""
+        rng = self.rng
+        q = x[QUAT]
+        if self.angle_noise > 0:
+            dq = np.concatenate([[1.0], 0.5 * rng.normal(0.0, self.angle_noise, 3)])
+            q = quat_multiply_np(dq, q)
+            q /= np.linalg.norm(q)
+        return Observation(
+            t=t,
+            position=x[POS] + rng.normal(0.0, self.position_noise, 2) if self.position_noise else x[POS].copy(),
+            quaternion=q.copy(),
+            omega=x[OMEGA] + rng.normal(0.0, self.gyro_noise, 3) if self.gyro_noise else x[OMEGA].copy(),
+            theta=float(x[THETA]),
+            theta_dot=float(x[THETA_DOT] + (rng.normal(0.0, self.speed_noise) if self.speed_noise else 0.0)),
+        )
+
+
+@dataclass(frozen=True)
+class Event:
+    """A moment where the no-slip rolling model stops describing the robot.
+
+    Attributes
+    ----------
+    kind : {"jump", "slide"}
+        Lost contact (normal force <= 0) or sliding (outside the friction cone).
+    time : float
+        Time of the first step with the violation, s.
+    margin : float
+        The violated margin there, N.
+    """
+
+    kind: str
+    time: float
+    margin: float
+
+
+@dataclass
+class SimulationResult:
+    """A simulated run: states, commands, contact diagnostics and events (SI units).
+
+    Attributes
+    ----------
+    params : RollbotParams
+        The plant's parameters.
+    dt : float
+        Control period, s.
+    t : numpy.ndarray (K+1,)
+        Times of the states, s.
+    x : numpy.ndarray (11, K+1)
+        States (see ``dynamics``), one column per time.
+    command : numpy.ndarray (K,)
+        Motor acceleration asked for in each period, before the motor's limits, rad/s^2.
+    speed_command : numpy.ndarray (K,)
+        Driving-speed command of each period, rad/s (NaN where the command was an acceleration).
+    diag : numpy.ndarray (7, K)
+        Diagnostics at the start of each period, rows as ``DIAG_NAMES``.
+    events : list of Event
+        Loss of contact or sliding, in time order (at most the first when the run stopped on it).
+    step_times : numpy.ndarray (K,)
+        Wall-clock time the controller took in each period, s (zeros in open loop).
+    info : dict
+        Extra records from the controller (for example solver statistics).
+    """
+
+    params: RollbotParams
+    dt: float
+    t: np.ndarray
+    x: np.ndarray
+    command: np.ndarray
+    speed_command: np.ndarray
+    diag: np.ndarray
+    events: list = field(default_factory=list)
+    step_times: np.ndarray | None = None
+    info: dict = field(default_factory=dict)
+
+    @property
+    def position(self) -> np.ndarray:
+        """Shell-centre positions (2, K+1), m."""
+        return self.x[POS]
+
+    @property
+    def driving_speed(self) -> np.ndarray:
+        """Driving speed theta_dot (K+1,), rad/s."""
+        return self.x[THETA_DOT]
+
+    @property
+    def heading(self) -> np.ndarray:
+        """Azimuth of the motor axis' horizontal projection (K+1,), rad (gamma)."""
+        return heading(self.x)
+
+    @property
+    def tilt(self) -> np.ndarray:
+        """Tilt of the motor axis from the floor normal (K+1,), rad (xi)."""
+        return tilt(self.x)
+
+    @property
+    def applied_accel(self) -> np.ndarray:
+        """Motor acceleration actually applied at the start of each period (K,), rad/s^2."""
+        return self.diag[0]
+
+    @property
+    def motor_torque(self) -> np.ndarray:
+        """Motor torque at the start of each period (K,), N m."""
+        return self.diag[1]
+
+    @property
+    def reaction(self) -> np.ndarray:
+        """Ground force on the shell (3, K), N."""
+        return self.diag[2:5]
+
+    @property
+    def normal_force(self) -> np.ndarray:
+        """No-jump margin: normal force (K,), N."""
+        return self.diag[5]
+
+    @property
+    def slide_margin(self) -> np.ndarray:
+        """No-slide margin ``mu N_z - |N_t|`` (K,), N."""
+        return self.diag[6]
+
+    @property
+    def completed(self) -> bool:
+        """True if the run reached its duration without a contact event."""
+        return not self.events
+
+    def energy(self) -> np.ndarray:
+        """Total mechanical energy of every state (K+1,), J."""
+        return RollbotModel(self.params).energy(self.x)
+
+    def save(self, path: str | Path) -> Path:
+        """Write the run to a compressed ``.npz`` file atomically."""
+        return save_npz(
+            path, t=self.t, x=self.x, command=self.command, speed_command=self.speed_command, diag=self.diag,
+            step_times=self.step_times if self.step_times is not None else np.zeros_like(self.command),
+            dt=self.dt, params=self.params.vector(), state_names=np.array(STATE_NAMES),
+            diag_names=np.array(DIAG_NAMES), event_kinds=np.array([e.kind for e in self.events], dtype=str),
+            event_times=np.array([e.time for e in self.events]),
+        )
+
+
+def _schedule(value, times: np.ndarray, name: str) -> np.ndarray:
+    """Commands at ``times`` from a constant, an array or a callable of time."""
+    if callable(value):
+        out = np.array([float(value(t)) for t in times])
+    else:
+        out = np.broadcast_to(np.asarray(value, float), times.shape).copy() if np.ndim(value) == 0 \
+            else np.asarray(value, float)
+    if out.shape != times.shape:
+        raise ValueError(f"simulate: {name} has {out.size} values, expected {times.size} (one per period)")
+    if not np.all(np.isfinite(out)):
+        raise ValueError(f"simulate: {name} holds non-finite values")
+    return out
+
+
+def _check_state(x0) -> np.ndarray:
+    x0 = np.asarray(x0, float).ravel()
+    if x0.shape != (NX,):
+        raise ValueError(f"simulate: x0 has {x0.size} entries, expected {NX} ({', '.join(STATE_NAMES)})")
+    if not np.all(np.isfinite(x0)):
+        raise ValueError("simulate: x0 holds non-finite values")
+    norm = np.linalg.norm(x0[QUAT])
+    if not norm > 1e-6:
+        raise ValueError(f"simulate: x0 quaternion {x0[QUAT]} has norm {norm:g}; it must be a unit quaternion")
+    x0 = x0.copy()
+    x0[QUAT] /= norm
+    return x0
+
+
+def _first_events(t: np.ndarray, diag: np.ndarray) -> list[Event]:
+    events = []
+    for kind, row in (("jump", 5), ("slide", 6)):
+        bad = np.flatnonzero(diag[row] < 0) if kind == "slide" else np.flatnonzero(diag[row] <= 0)
+        if bad.size:
+            events.append(Event(kind, float(t[bad[0]]), float(diag[row, bad[0]])))
+    return sorted(events, key=lambda e: e.time)
+
+
+def simulate(x0, duration: float, *, params: RollbotParams | None = None, controller: Controller | None = None,
+             speed=None, accel=None, dt: float = 0.01, substeps: int = 2, method: str = "rk4",
+             sensor: Sensor | None = None, wrench=None, stop_on_event: bool = True) -> SimulationResult:
+    """Simulate Rollbot's full nonlinear dynamics, open loop or under a controller.
+
+    Parameters
+    ----------
+    x0 : array_like (11,)
+        Initial state (see ``dynamics``); the quaternion is normalised.
+    duration : float
+        Length of the run, s (rounded to whole control periods).
+    params : RollbotParams, optional
+        Plant parameters, including slope and motor limits; the prototype by default.
+    controller : Controller, optional
+        Called once per period with an ``Observation``; returns a ``Command``.
+    speed : float, array_like or callable, optional
+        Open-loop driving-speed command (rad/s): a constant, one value per
+        period, or a function of time (s).
+    accel : float, array_like or callable, optional
+        Open-loop motor-acceleration command (rad/s^2), likewise.
+    dt : float
+        Control period, s.
+    substeps : int
+        RK4 steps per period (2 gives 5 ms steps at 100 Hz; see module doc).
+    method : {"rk4", "cvodes"}
+        Integrator.
+    sensor : Sensor, optional
+        Noise and latency of what the controller sees; perfect by default.
+    wrench : array_like (6,), optional
+        Constant external force (N) and torque (N m) on the shell, floor frame.
+    stop_on_event : bool
+        End the run at the first loss of contact or slide (default).
+
+    Returns
+    -------
+    SimulationResult
+    """
+    params = params or RollbotParams()
+    x0 = _check_state(x0)
+    if not (math.isfinite(duration) and duration > 0):
+        raise ValueError(f"simulate: duration = {duration!r} must be a finite time > 0 s")
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"simulate: dt = {dt!r} must be a finite period > 0 s")
+    given = [name for name, v in (("controller", controller), ("speed", speed), ("accel", accel)) if v is not None]
+    if len(given) > 1:
+        raise ValueError(f"simulate: give one of controller, speed and accel, not {' and '.join(given)}")
+    steps = max(1, int(round(duration / dt)))
+    times = dt * np.arange(steps + 1)
+    p = params.vector()
+    w = np.zeros(NW) if wrench is None else np.asarray(wrench, float).reshape(NW)
+    if controller is None:
+        if speed is not None:
+            cmd = _schedule(speed, times[:-1], "speed")
+            states, diag = _speed_step(dt, substeps, method).mapaccum(steps)(x0, cmd.reshape(1, -1), p, w)
+            speed_cmd = cmd
+        else:
+            cmd = _schedule(0.0 if accel is None else accel, times[:-1], "accel")
+            states, diag = plant_step(dt, substeps, method).mapaccum(steps)(x0, cmd.reshape(1, -1), p, w)
+            speed_cmd = np.full(steps, np.nan)
+        x = np.hstack([x0[:, None], np.array(states)])
+        diag = np.array(diag)
+        command = cmd if speed is None else (speed_cmd - x[THETA_DOT, :-1]) / dt
+        step_times = np.zeros(steps)
+        info = {}
+    else:
+        x, command, speed_cmd, diag, step_times, info = _closed_loop(
+            x0, steps, dt, controller, plant_step(dt, substeps, method), p, w, sensor or Sensor(), stop_on_event)
+    events = _first_events(times, diag)
+    end = diag.shape[1]
+    if events and stop_on_event:
+        end = int(round(events[0].time / dt)) + 1
+        events = [e for e in events if e.time <= events[0].time]
+    return SimulationResult(params, dt, times[:end + 1], x[:, :end + 1], command[:end], speed_cmd[:end],
+                            diag[:, :end], events, step_times[:end], info)
+
+
+def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event):
+    x = np.empty((NX, steps + 1))
+    x[:, 0] = x0
+    diag = np.empty((NDIAG, steps))
+    command = np.empty(steps)
+    speed_cmd = np.full(steps, np.nan)
+    step_times = np.empty(steps)
+    step = FastFunction(step)
+    controller.reset()
+    for k in range(steps):
+        seen = max(0, k - sensor.latency)
+        obs = sensor.measure(seen * dt, x[:, seen])
+        start = time.perf_counter()
+        cmd = controller(obs)
+        step_times[k] = time.perf_counter() - start
+        if cmd.speed is not None:
+            speed_cmd[k] = cmd.speed
+        command[k] = cmd.acceleration(x[THETA_DOT, k], dt)
+        x[:, k + 1], diag[:, k] = step(x[:, k], command[k], p, w)
+        if stop_on_event and (diag[5, k] <= 0 or diag[6, k] < 0):
+            return x[:, :k + 2], command[:k + 1], speed_cmd[:k + 1], diag[:, :k + 1], step_times[:k + 1], \
+                _controller_info(controller)
+    return x, command, speed_cmd, diag, step_times, _controller_info(controller)
+
+
+def _controller_info(controller) -> dict:
+    report = getattr(controller, "report", None)
+    return report() if callable(report) else {}

@@ -77,6 +77,63 @@ def _cmd_openloop(args) -> int:
     return 0
 
 
+def _paper_figures(params, out: Path) -> list[Path]:
+    """Write the quasi-stable and eigenvalue figures for [0, max_speed] into ``out``."""
+    import numpy as np
+
+    from rollbot_oc.plots import plot_eigenvalues, plot_quasi_stable
+    from rollbot_oc.quasi_stable import quasi_stable_curve
+    from rollbot_oc.stability import stability_curve
+
+    omegas = np.linspace(0.0, params.max_speed, 200)
+    curves = {branch: quasi_stable_curve(omegas, params, branch) for branch in ("slow", "fast")}
+    paths = [out / "quasi_stable.png", out / "eigenvalues.png"]
+    plot_quasi_stable(curves, path=paths[0])
+    plot_eigenvalues(stability_curve(omegas[1:], params), path=paths[1])
+    return paths
+
+
+def _cmd_quasi(args) -> int:
+    from rollbot_oc.quasi_stable import quasi_stable_curve
+
+    params = load_params(args.params)
+    states = quasi_stable_curve(args.omega0, params, args.branch)
+    rows = [s.to_dict() for s in states]
+    if args.plot:
+        _paper_figures(params, Path(args.plot))
+    if args.json:
+        print(to_json(rows))
+    else:
+        print(f"{'omega0':>8} {'Omega':>9} {'theta0(deg)':>11} {'xi(deg)':>8} {'R0 (m)':>9} {'branch':>6} converged")
+        for r in rows:
+            print(f"{r['omega0']:8.3f} {r['Omega']:9.4f} {math.degrees(r['theta0']):11.3f} "
+                  f"{math.degrees(r['xi']):8.3f} {r['R0']:9.4f} {r['branch']:>6} {r['converged']}")
+    failed = [r["omega0"] for r in rows if not r["converged"]]
+    if failed:
+        print(f"rollbot-oc: no quasi-stable state on the {args.branch} branch at omega0 = "
+              f"{', '.join(f'{w:g}' for w in failed)} rad/s (see 'residual')", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _cmd_stability(args) -> int:
+    from rollbot_oc.stability import stability_curve
+
+    params = load_params(args.params)
+    results = stability_curve(args.omega0, params, args.branch)
+    rows = [r.to_dict() for r in results]
+    if args.plot:
+        _paper_figures(params, Path(args.plot))
+    if args.json:
+        print(to_json(rows))
+    else:
+        print(f"{'omega0':>8} {'Re(l2)':>9} {'Im(l2)':>9} {'tau (s)':>8} stable")
+        for r in rows:
+            tau = "inf" if r["tau"] is None else f"{r['tau']:.3f}"
+            print(f"{r['omega0']:8.3f} {r['lambda2'][0]:9.4f} {r['lambda2'][1]:9.4f} {tau:>8} {r['stable']}")
+    return 0
+
+
 def _cmd_demo(args) -> int:
     """The main job (grows with the toolkit): open-loop runs with plots and JSON in ``--out``."""
     args.omega0, args.duration, args.ramp_rate, args.json = [1.0, 3.0, 6.0], None, 0.5, False
@@ -107,6 +164,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR", help="write top-view plots (PNG) and openloop.json here")
     p.add_argument("--json", action="store_true", help="print a JSON list of measurements")
     p.set_defaults(run=_cmd_openloop)
+
+    p = sub.add_parser("quasi", help="quasi-stable (steadily revolving) states at given driving speeds")
+    p.add_argument("--omega0", type=_finite, nargs="+", required=True, metavar="W",
+                   help="driving speeds, rad/s, in [0, max_speed]")
+    _add_params(p)
+    p.add_argument("--branch", choices=("slow", "fast"), default="slow",
+                   help="slow: pendulum near the bottom (the experiments'); fast: pendulum near the top")
+    p.add_argument("--plot", metavar="DIR", help="write quasi_stable.png and eigenvalues.png here")
+    p.add_argument("--json", action="store_true", help="print a JSON list (SI units, radians)")
+    p.set_defaults(run=_cmd_quasi)
+
+    p = sub.add_parser("stability", help="linearised stability (eigenvalues, lambda2, recovery time) of "
+                       "quasi-stable states")
+    p.add_argument("--omega0", type=_finite, nargs="+", required=True, metavar="W",
+                   help="driving speeds, rad/s, in [0, max_speed]")
+    _add_params(p)
+    p.add_argument("--branch", choices=("slow", "fast"), default="slow", help="branch of quasi-stable states")
+    p.add_argument("--plot", metavar="DIR", help="write quasi_stable.png and eigenvalues.png here")
+    p.add_argument("--json", action="store_true", help="print a JSON list (eigenvalues as [re, im], 1/s)")
+    p.set_defaults(run=_cmd_stability)
 
     p = sub.add_parser("demo", help="the main job: compute, simulate and write a report folder")
     _add_params(p)

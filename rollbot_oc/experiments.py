@@ -20,7 +20,7 @@ from rollbot_oc.dynamics import rest_state
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.simulate import SimulationResult, simulate
 
-__all__ = ["fit_circle", "CircleFit", "OpenLoopMeasurement", "open_loop_run", "open_loop_experiment"]
+__all__ = ["fit_circle", "CircleFit", "OpenLoopMeasurement", "open_loop_run", "open_loop_experiment", "damped_modes"]
 
 
 @dataclass(frozen=True)
@@ -177,3 +177,39 @@ def _concatenate(a: SimulationResult, b: SimulationResult) -> SimulationResult:
 def open_loop_experiment(omegas, params: RollbotParams | None = None, **kwargs) -> list[OpenLoopMeasurement]:
     """``open_loop_run`` for each driving speed in ``omegas`` (rad/s); returns the measurements."""
     return [open_loop_run(float(w), params, **kwargs)[0] for w in omegas]
+
+
+def damped_modes(signal, dt: float, order: int) -> np.ndarray:
+    """Complex rates ``s = sigma + i omega`` (1/s) of the damped exponentials that make up a signal.
+
+    The matrix-pencil method: the samples of a sum of ``order`` damped
+    exponentials ``exp(s t)`` span a Hankel matrix of rank ``order``; the
+    rates follow from the shift-invariance of its dominant right singular
+    vectors.  Used to read decay rates and frequencies off a simulated
+    response without any initial guess (so without knowing the answer).
+
+    Parameters
+    ----------
+    signal : array_like (n,)
+        Uniformly sampled real signal.
+    dt : float
+        Sampling period, s.
+    order : int
+        Number of exponentials to fit (a real damped oscillation counts twice).
+
+    Returns
+    -------
+    numpy.ndarray (order,) complex
+        The rates, sorted by decreasing real part.
+    """
+    y = np.asarray(signal, float).ravel()
+    n = y.size
+    if not 1 <= order < n // 3:
+        raise ValueError(f"damped_modes: order = {order} must be in [1, {n // 3 - 1}] for {n} samples")
+    L = n // 2
+    hankel = np.lib.stride_tricks.sliding_window_view(y, L + 1)
+    _, _, vh = np.linalg.svd(hankel, full_matrices=False)
+    V = vh[:order].conj().T
+    z = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
+    rates = np.log(z.astype(complex)) / dt
+    return rates[np.argsort(-rates.real, kind="stable")]

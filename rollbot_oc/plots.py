@@ -19,7 +19,10 @@ import numpy as np  # noqa: E402
 
 from rollbot_oc.outputs import atomic_write_bytes  # noqa: E402
 
-__all__ = ["ROBOT", "CENTRE", "SPEED", "TARGET", "THEORY", "save_figure", "plot_top_view", "plot_time_series"]
+__all__ = [
+    "ROBOT", "CENTRE", "SPEED", "TARGET", "THEORY", "MEASURED", "save_figure", "plot_top_view", "plot_time_series",
+    "plot_quasi_stable", "plot_eigenvalues",
+]
 
 ROBOT = "tab:orange"
 CENTRE = "tab:blue"
@@ -91,5 +94,70 @@ def plot_time_series(result, centres=None, title: str | None = None, path=None):
     axes[2].grid(alpha=0.3)
     if title:
         axes[0].set_title(title)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def plot_quasi_stable(curves, path=None, title: str | None = None):
+    """The paper's 'key parameters of quasi-stable state' figure: R0, Omega, xi, theta0 against omega0.
+
+    Parameters
+    ----------
+    curves : dict of str -> list of QuasiStableState
+        One curve per branch name (for example ``{"slow": [...], "fast": [...]}``).
+    path : str or Path, optional
+        Where to write the PNG.
+    """
+    fig, axes = plt.subplots(2, 2, figsize=(9, 6.5), sharex=True)
+    panels = [("R0", "revolving radius R0 (m)", 1.0), ("Omega", "revolving rate Omega (rad/s)", 1.0),
+              ("xi", "tilt of motor axis xi (deg)", 180 / np.pi), ("theta0", "pendulum angle theta0 (deg)", 180 / np.pi)]
+    styles = {"slow": dict(color=THEORY, ls="-"), "fast": dict(color="tab:gray", ls="--")}
+    for ax, (key, label, scale) in zip(axes.ravel(), panels):
+        for branch, states in curves.items():
+            ok = [s for s in states if s.converged]
+            ax.plot([s.omega0 for s in ok], [getattr(s, key) * scale for s in ok], label=f"{branch} branch",
+                    **styles.get(branch, {}))
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    for ax in axes[1]:
+        ax.set_xlabel("driving speed omega0 (rad/s)")
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(title or "Quasi-stable states")
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def plot_eigenvalues(results, path=None, title: str | None = None):
+    """The paper's eigenvalue figure: eigenvalue trajectories over omega0, and the recovery time.
+
+    Parameters
+    ----------
+    results : list of Stability
+        Along increasing driving speed.
+    path : str or Path, optional
+        Where to write the PNG.
+    """
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.5), gridspec_kw=dict(width_ratios=[1.3, 1]))
+    omegas = np.array([r.state.omega0 for r in results])
+    eig = np.array([r.eigenvalues for r in results])
+    points = ax.scatter(eig.real.ravel(), eig.imag.ravel(), c=np.repeat(omegas, eig.shape[1]), s=6, cmap="viridis")
+    ax.plot([r.symmetry_eigenvalue for r in results], np.zeros(len(results)), "x", color=TARGET, ms=4,
+            label="symmetry mode (removed)")
+    ax.axvline(0.0, color="k", lw=0.6)
+    fig.colorbar(points, ax=ax, label="driving speed omega0 (rad/s)")
+    ax.set_xlabel("Re(lambda) (1/s)")
+    ax.set_ylabel("Im(lambda) (1/s)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower left")
+    ax2.plot(omegas, [r.lambda2.real for r in results], color=THEORY, label="Re(lambda2)")
+    ax2.set_xlabel("driving speed omega0 (rad/s)")
+    ax2.set_ylabel("Re(lambda2) (1/s)")
+    ax2.grid(alpha=0.3)
+    ax3 = ax2.twinx()
+    ax3.plot(omegas, [r.tau for r in results], color=ROBOT, label="recovery time tau")
+    ax3.set_ylabel("recovery time tau (s)")
+    ax2.legend(loc="upper left", fontsize=8)
+    ax3.legend(loc="upper right", fontsize=8)
+    fig.suptitle(title or "Linearised stability of the quasi-stable states")
     fig.tight_layout()
     return save_figure(fig, path)

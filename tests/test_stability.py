@@ -1,0 +1,102 @@
+"""Linearised stability: the paper's anchors, the symmetry mode, and agreement with direct simulation."""
+
+import math
+
+import control
+import numpy as np
+import pytest
+
+from rollbot_oc.experiments import damped_modes
+from rollbot_oc.params import RollbotParams
+from rollbot_oc.quasi_stable import quasi_stable_state
+from rollbot_oc.simulate import simulate
+from rollbot_oc.stability import linearise, perturbed_state, stability, stability_curve, state_space
+
+
+@pytest.fixture(scope="module")
+def curve():
+    return stability_curve(np.linspace(0.0, 3 * np.pi, 200)[1:])
+
+
+def test_paper_anchors(curve):
+    re2 = np.array([r.lambda2.real for r in curve])
+    assert np.all((-0.2 <= re2) & (re2 <= -0.1))  # the paper: Re(lambda2) within [-0.2, -0.1]
+    taus = np.array([r.tau for r in curve])
+    assert 5.0 < taus.min() and taus.max() < 8.0 and abs(np.median(taus) - 7.0) < 1.0  # "about 7 s"
+    assert all(r.stable for r in curve)
+
+
+def test_symmetry_mode_is_exact_and_removed(curve):
+    for r in curve[::40]:
+        A7, B7, Aq, Bq, v0 = linearise(r.state)
+        assert np.abs(A7 @ v0).max() <= 1e-12 * np.abs(A7).max()
+        assert abs(r.symmetry_eigenvalue) < 1e-10
+        full = np.sort_complex(np.linalg.eigvals(A7[:6, :6]))
+        kept = np.sort_complex(np.append(r.eigenvalues, r.symmetry_eigenvalue))
+        assert np.allclose(full, kept, atol=1e-9)
+
+
+def test_state_space_export(curve):
+    r = curve[60]
+    sys = state_space(r)
+    assert isinstance(sys, control.StateSpace) and sys.nstates == 6 and sys.ninputs == 1
+    poles = np.sort_complex(sys.poles())
+    assert np.allclose(poles, np.sort_complex(np.append(r.eigenvalues, 0.0)), atol=1e-9)
+    assert np.linalg.matrix_rank(control.ctrb(sys.A, sys.B)) == 6  # the motor reaches every mode
+
+
+@pytest.mark.parametrize("omega0", [3.0, 6.0])
+def test_decay_and_frequency_match_direct_simulation(omega0):
+    """Kick a quasi-stable state in the full simulator and read its modes off the tilt response."""
+    state = quasi_stable_state(omega0)
+    linear = stability(state)
+    x0 = state.state()
+    x0[6:9] += [0.02, -0.01, 0.03]  # a generic kick of the shell (rad/s)
+    run = simulate(x0, 30.0, speed=omega0)
+    rates = damped_modes((run.tilt - state.xi)[::5], 5 * run.dt, order=7)
+    for lam in linear.eigenvalues[linear.eigenvalues.imag >= 0]:
+        fitted = rates[np.argmin(np.abs(rates - lam))]
+        assert fitted.real == pytest.approx(lam.real, rel=0.10)
+        assert fitted.imag == pytest.approx(lam.imag, rel=0.10, abs=0.02)
+    lam2 = linear.lambda2
+    fitted2 = rates[np.argmin(np.abs(rates - lam2))]
+    assert abs(fitted2 - lam2) < 0.01 * abs(lam2)  # in fact far better than 10 %
+
+
+def test_linear_response_tracks_the_nonlinear_one():
+    state = quasi_stable_state(3.0)
+    y0 = np.array([0.0, 0.01, 0.0, 0.0, 0.0, 0.0])  # 0.01 rad more tilt
+    run = simulate(perturbed_state(state, y0), 10.0, speed=3.0)
+    linear = control.initial_response(state_space(stability(state)), T=run.t, X0=y0)
+    tilt_change = run.tilt - state.xi
+    assert np.abs(tilt_change - linear.outputs[1]).max() <= 0.02 * np.abs(linear.outputs[1]).max()
+
+
+def test_fast_branch_is_unstable_and_the_simulation_agrees():
+    state = quasi_stable_state(6.0, branch="fast")
+    result = stability(state)
+    assert not result.stable and result.tau == math.inf
+    growth = result.lambda2.real
+    assert growth > 1.0
+    x0 = state.state()
+    x0[6] += 1e-7
+    run = simulate(x0, 4.0, speed=6.0, stop_on_event=False)
+    rates = damped_modes((run.tilt - state.xi)[::2], 2 * run.dt, order=6)
+    fitted = rates[np.argmin(np.abs(rates - result.lambda2))]
+    assert fitted.real == pytest.approx(growth, rel=0.10)
+    assert fitted.imag == pytest.approx(abs(result.lambda2.imag), rel=0.10)
+
+
+def test_other_robots_report_their_stability():
+    for params in (RollbotParams(phi=math.radians(30)), RollbotParams(m=0.5), RollbotParams(k0=0.002)):
+        results = stability_curve([1.0, 4.0], params)
+        assert all(r.stable and r.tau > 0 for r in results)
+    light_damping = stability_curve([3.0], RollbotParams(k0=0.0005))[0]
+    assert light_damping.tau > 3 * stability_curve([3.0])[0].tau  # less damping, slower recovery
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="omega0"):
+        stability_curve([-1.0])
+    with pytest.raises(ValueError, match="expected 6"):
+        perturbed_state(quasi_stable_state(1.0), np.zeros(3))

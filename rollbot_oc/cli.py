@@ -134,6 +134,46 @@ def _cmd_stability(args) -> int:
     return 0
 
 
+def _write_run(run, out: Path) -> None:
+    """Trajectory (.npz), metrics (JSON) and the paper-style plots of a closed-loop run."""
+    from rollbot_oc.plots import plot_time_series, plot_top_view
+
+    stem = f"{run.problem.name}_{run.controller}"
+    run.result.save(out / f"{stem}.npz")
+    write_json(out / f"{stem}.json", run.metrics)
+    targets = run.problem.mission.stops if run.problem.kind == "waypoints" else None
+    circle = run.problem.mission if run.problem.kind == "circle" else None
+    title = f"{run.problem.name}, {run.controller}"
+    plot_top_view(run.result, centres=run.centres, targets=targets, circle=circle, title=title,
+                  path=out / f"{stem}_top.png")
+    plot_time_series(run.result, centres=run.centres, title=title, path=out / f"{stem}_time.png")
+
+
+def _cmd_run(args) -> int:
+    from rollbot_oc.problems import load_problem, run_open_loop, run_problem
+
+    problem = load_problem(args.problem, base=load_params(args.params))
+    if problem.kind == "open_loop":
+        metrics = run_open_loop(problem)
+        if args.out:
+            write_json(Path(args.out) / f"{problem.name}.json", metrics)
+    else:
+        run = run_problem(problem, args.controller, seed=args.seed, duration=args.duration)
+        metrics = run.metrics
+        if args.out:
+            _write_run(run, Path(args.out))
+    if args.json:
+        print(to_json(metrics))
+    else:
+        for key, value in metrics.items():
+            if key != "runs":
+                print(f"{key:>22}: {value}")
+        for row in metrics.get("runs", []):
+            print(f"omega0 {row['omega0']:5.2f} rad/s: R0 {row['R0']:.4f} m (theory {row['R0_theory']:.4f}, "
+                  f"{100 * row['R0_error']:+.2f} %), settled {row['settled']}")
+    return 0 if metrics.get("completed") else 1
+
+
 def _cmd_demo(args) -> int:
     """The main job (grows with the toolkit): open-loop runs with plots and JSON in ``--out``."""
     args.omega0, args.duration, args.ramp_rate, args.json = [1.0, 3.0, 6.0], None, 0.5, False
@@ -184,6 +224,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", metavar="DIR", help="write quasi_stable.png and eigenvalues.png here")
     p.add_argument("--json", action="store_true", help="print a JSON list (eigenvalues as [re, im], 1/s)")
     p.set_defaults(run=_cmd_stability)
+
+    p = sub.add_parser("run", help="run a scenario file (problems/*.toml) under a controller and print its metrics")
+    p.add_argument("problem", metavar="PROBLEM.toml", help="scenario file (schema in the README)")
+    p.add_argument("--controller", choices=("pid", "nmpc"), default="pid",
+                   help="pid: the paper's quasi-stable baseline; nmpc: nonlinear MPC (default pid)")
+    _add_params(p)
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the sensor noise (default 0)")
+    p.add_argument("--duration", type=_finite, metavar="T", help="override the problem's duration, s")
+    p.add_argument("--out", metavar="DIR", help="write the trajectory (.npz), metrics (.json) and plots (PNG) here")
+    p.add_argument("--json", action="store_true", help="print the metrics as JSON (SI units)")
+    p.set_defaults(run=_cmd_run)
 
     p = sub.add_parser("demo", help="the main job: compute, simulate and write a report folder")
     _add_params(p)

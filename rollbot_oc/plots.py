@@ -41,7 +41,7 @@ def save_figure(fig, path: str | Path | None, dpi: int = 120):
     return fig
 
 
-def plot_top_view(result, centres=None, targets=None, title: str | None = None, path=None, ax=None):
+def plot_top_view(result, centres=None, targets=None, circle=None, title: str | None = None, path=None, ax=None):
     """Top view of the shell-centre path (orange) and, if given, of the centre of curvature (blue).
 
     Parameters
@@ -52,6 +52,8 @@ def plot_top_view(result, centres=None, targets=None, title: str | None = None, 
         Centre of curvature along the run, m.
     targets : sequence of (x, y), optional
         Target points, m, drawn as red crosses.
+    circle : Circle, optional
+        Target circle, drawn in red.
     title : str, optional
     path : str or Path, optional
         Where to write the PNG.
@@ -64,6 +66,10 @@ def plot_top_view(result, centres=None, targets=None, title: str | None = None, 
     ax.plot(s[0, 0], s[1, 0], "o", color=ROBOT, ms=5)
     if centres is not None:
         ax.plot(centres[0], centres[1], color=CENTRE, lw=1.0, label="centre of curvature o")
+    if circle is not None:
+        a = np.linspace(0.0, 2 * np.pi, 200)
+        ax.plot(circle.centre[0] + circle.radius * np.cos(a), circle.centre[1] + circle.radius * np.sin(a),
+                color=TARGET, lw=1.0, ls="--", label="target circle")
     if targets is not None and len(targets):
         tx, ty = np.asarray(targets, float).T
         ax.plot(tx, ty, "x", color=TARGET, ms=9, mew=2, label="targets")

@@ -390,19 +390,19 @@ class RadiusMap:
         fun = _radius_with_slope()
         p = level(self.params).vector()
         omegas = np.linspace(0.0, self.omega_max, knots)
-        radii, slopes = np.empty(knots), np.empty(knots)
+        radii, slopes, kappas = np.empty(knots), np.empty(knots), np.empty(knots)
         z = _start("slow", self.params)
         for i, w in enumerate(omegas):
             z, ok = _continue(z, omegas[i - 1] if i else 0.0, w, self.params)
-            R0, dR0, z_out = fun(z, w, p)
-            radii[i], slopes[i] = float(R0), float(dR0)
+            R0, dR0, _ = fun(z, w, p)
+            radii[i], slopes[i], kappas[i] = float(R0), float(dR0), z[0]
             if not ok or not _evaluate(z, w, self.params, "slow", ok).converged:
                 raise ValueError(f"radius map: the slow branch could not be followed to omega0 = {w:.4g} rad/s")
         if np.any(np.diff(radii) <= 0):
             bad = omegas[1:][np.diff(radii) <= 0][0]
             raise ValueError(f"radius map: R0 stops increasing with omega0 at {bad:.4g} rad/s for these parameters; "
                              "no one-to-one map from radius to driving speed exists")
-        self.omegas, self.radii, self.slopes = omegas, radii, slopes
+        self.omegas, self.radii, self.slopes, self.kappas = omegas, radii, slopes, kappas
         self._spline = CubicHermiteSpline(omegas, radii, slopes)
         self._dspline = self._spline.derivative()
         # per-interval cubic coefficients (highest power first) for the fast scalar inverse
@@ -422,10 +422,29 @@ class RadiusMap:
 
     def radius(self, omega0):
         """Revolving radius ``R0`` (m) at driving speed ``omega0`` (rad/s), clipped to the map's range."""
+        if isinstance(omega0, float):
+            return self._cubic(omega0, 0)
         return self._spline(np.clip(omega0, 0.0, self.omega_max))
+
+    def _cubic(self, omega0: float, derivative: int) -> float:
+        """Scalar Hermite-spline value (0) or slope (1) with plain floats (fast path for controllers)."""
+        w = min(max(omega0, 0.0), self.omega_max)
+        i = min(bisect.bisect_right(self._omega_list, w) - 1, len(self._omega_list) - 2)
+        c3, c2, c1, c0 = self._coeffs[i]
+        t = w - self._omega_list[i]
+        if derivative:
+            return (3 * c3 * t + 2 * c2) * t + c1
+        return ((c3 * t + c2) * t + c1) * t + c0
+
+    def rate(self, omega0):
+        """Revolving rate ``Omega`` (rad/s) at driving speed ``omega0`` (rad/s), interpolated."""
+        w = np.clip(omega0, 0.0, self.omega_max)
+        return w * np.interp(w, self.omegas, self.kappas)
 
     def slope(self, omega0):
         """``dR0/domega0`` (m s/rad) at driving speed ``omega0`` (rad/s)."""
+        if isinstance(omega0, float):
+            return self._cubic(omega0, 1)
         return self._dspline(np.clip(omega0, 0.0, self.omega_max))
 
     def omega(self, radius):

@@ -55,10 +55,15 @@ def quat_derivative(q, omega):
 
 
 def quat_multiply_np(a, b) -> np.ndarray:
-    """Hamilton product ``a * b`` of two quaternions (numpy)."""
-    aw, av = a[0], np.asarray(a[1:], float)
-    bw, bv = b[0], np.asarray(b[1:], float)
-    return np.concatenate([[aw * bw - av @ bv], aw * bv + bw * av + np.cross(av, bv)])
+    """Hamilton product ``a * b`` of two quaternions (numpy; plain arithmetic, it runs every control step)."""
+    aw, ax, ay, az = (float(v) for v in a)
+    bw, bx, by, bz = (float(v) for v in b)
+    return np.array([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ])
 
 
 def rot_x_np(angle: float) -> np.ndarray:

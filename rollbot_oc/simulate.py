@@ -456,6 +456,8 @@ def simulate(x0, duration: float, *, params: RollbotParams | None = None, contro
         Plant parameters, including slope and motor limits; the prototype by default.
     controller : Controller, optional
         Called once per period with an ``Observation``; returns a ``Command``.
+        The run ends early once the controller's ``done`` attribute (if it
+        has one) turns True.
     speed : float, array_like or callable, optional
         Open-loop driving-speed command (rad/s): a constant, one value per
         period, or a function of time (s).
@@ -526,6 +528,7 @@ def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event):
     step_times = np.empty(steps)
     step = FastFunction(step)
     controller.reset()
+    end = steps
     for k in range(steps):
         seen = max(0, k - sensor.latency)
         obs = sensor.measure(seen * dt, x[:, seen])
@@ -536,10 +539,11 @@ def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event):
             speed_cmd[k] = cmd.speed
         command[k] = cmd.acceleration(x[THETA_DOT, k], dt)
         x[:, k + 1], diag[:, k] = step(x[:, k], command[k], p, w)
-        if stop_on_event and (diag[5, k] <= 0 or diag[6, k] < 0):
-            return x[:, :k + 2], command[:k + 1], speed_cmd[:k + 1], diag[:, :k + 1], step_times[:k + 1], \
-                _controller_info(controller)
-    return x, command, speed_cmd, diag, step_times, _controller_info(controller)
+        if (stop_on_event and (diag[5, k] <= 0 or diag[6, k] < 0)) or getattr(controller, "done", False):
+            end = k + 1
+            break
+    return (x[:, :end + 1], command[:end], speed_cmd[:end], diag[:, :end], step_times[:end],
+            _controller_info(controller))
 
 
 def _controller_info(controller) -> dict:

@@ -1,6 +1,7 @@
 """The command-line contracts (JSON keys, exit codes, one-line errors)."""
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -55,3 +56,27 @@ def test_bad_arguments(argv, message, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1
+
+
+def test_run_json_contract(capsys, tmp_path):
+    problem = tmp_path / "short.toml"
+    problem.write_text((Path(__file__).parent.parent / "problems" / "circle_R035.toml").read_text()
+                       .replace("duration = 300.0", "duration = 40.0").replace("settle_time = 120.0",
+                                                                               "settle_time = 20.0"))
+    status = main(["run", str(problem), "--controller", "pid", "--seed", "2", "--json", "--out", str(tmp_path)])
+    metrics = json.loads(capsys.readouterr().out)
+    keys = {"completed", "completion_time", "avg_speed", "stop_errors", "avg_deviation", "max_deviation",
+            "max_motor_torque", "max_driving_speed", "min_normal_force", "min_slide_margin", "step_time_median"}
+    assert keys <= set(metrics) and status in (0, 1) and (status == 0) == metrics["completed"]
+    assert metrics["seed"] == 2 and metrics["step_time_median"] > 0
+    for suffix in (".npz", ".json", "_top.png", "_time.png"):
+        assert (tmp_path / f"circle_R035_pid{suffix}").exists()
+    assert json.loads((tmp_path / "circle_R035_pid.json").read_text())["versions"]["numpy"]
+
+
+def test_run_rejects_a_bad_problem_in_one_line(capsys, tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "x"\nkind = "circle"\nduration = 10\n[circle]\nradius = 0.3\nwobble = 1\n')
+    assert main(["run", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "unknown key(s) wobble" in err and err.count("\n") == 1

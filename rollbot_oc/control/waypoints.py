@@ -1,0 +1,216 @@
+"""The paper's waypoint layer: from a mission to a centre-of-curvature target and stop timing.
+
+Paper, last paragraph of "Control Design": to pass a point ``s_g`` with
+velocity ``v_g``, compute the radius ``R_g`` whose quasi-stable speed is
+``|v_g|`` and the centre ``o_g = s_g - R_g e(gamma_g)`` (eqn "ofunc", with
+``gamma_g`` such that the revolving velocity at ``s_g`` is ``v_g``), and revolve
+about ``o_g``; to stop at ``s_g``, revolve about a suitable ``o_g`` and
+gradually stop the motor while approaching ``s_g``.
+
+Stopping, made precise with the quasi-stable model: braking from driving
+speed ``w`` at a constant rate ``b`` the robot keeps rolling along a spiral,
+and its rest position relative to where braking starts is a fixed
+displacement ``D(w)`` in the robot's own frame (``e(gamma)``, its normal).
+``StopPredictor`` integrates that spiral once, from the quasi-stable
+revolving rate and radius, into a table.  Revolving about ``o_g`` at ``R_g``,
+the predicted rest points lie on a circle of radius ``rho = |R_g x + D|``
+about ``o_g``; so ``o_g`` is placed at distance ``rho`` from ``s_g``, and
+braking starts when the predicted rest point passes closest to ``s_g``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from rollbot_oc.control.missions import Circle, Waypoints
+from rollbot_oc.quasi_stable import RadiusMap
+
+__all__ = ["StopPredictor", "Target", "WaypointLayer"]
+
+
+def _rotate(angle: float, v) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
+
+
+class StopPredictor:
+    """Where a revolving robot comes to rest when it brakes at a constant rate.
+
+    Parameters
+    ----------
+    radius_map : RadiusMap
+        Quasi-stable radius and revolving rate of the robot.
+    decel : float
+        Braking rate of the driving speed, rad/s^2.
+    """
+
+    def __init__(self, radius_map: RadiusMap, decel: float):
+        if not (math.isfinite(decel) and decel > 0):
+            raise ValueError(f"stop deceleration = {decel!r} must be > 0 rad/s^2")
+        self.decel = decel
+        self.speeds = np.linspace(0.0, radius_map.omega_max, 97)
+        fine = np.linspace(0.0, radius_map.omega_max, 4001)  # driving speed during braking, rad/s
+        dt = (fine[1] - fine[0]) / decel  # s per fine step
+        rate = radius_map.rate(fine)
+        speed = rate * radius_map.radius(fine)  # quasi-stable speed of the centre, m/s
+        # integrate from rest upwards: the state at speed w brakes through all lower speeds
+        turn = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * dt)])
+        self._table = np.empty((len(self.speeds), 2))
+        for i, w in enumerate(self.speeds):
+            k = int(round(w / (fine[1] - fine[0])))
+            if k == 0:
+                self._table[i] = 0.0
+                continue
+            angle = turn[k] - turn[: k + 1]  # heading change since braking began, rad
+            vel = speed[: k + 1] * np.array([-np.sin(angle), np.cos(angle)])  # in the robot's starting frame
+            self._table[i] = np.trapezoid(vel[:, ::-1], dx=dt, axis=1)
+
+    def displacement(self, omega0: float) -> np.ndarray:
+        """Rest position minus braking position (m), in the frame (e(gamma), normal) of the robot."""
+        return np.array([np.interp(omega0, self.speeds, self._table[:, j]) for j in range(2)])
+
+    def rest_point(self, position, heading: float, omega0: float) -> np.ndarray:
+        """Predicted rest position (m) of a robot at ``position`` (m), ``heading`` (rad), speed ``omega0`` (rad/s)."""
+        return np.asarray(position, float) + _rotate(heading, self.displacement(omega0))
+
+
+@dataclass(frozen=True)
+class Target:
+    """What the layer asks the centre-of-curvature controller for at one step.
+
+    Attributes
+    ----------
+    centre : numpy.ndarray (2,)
+        Target centre of curvature o_g, m.
+    radius : float
+        Target revolving radius R_g, m.
+    braking : bool
+        True while the motor is being stopped (the controller ramps the speed to zero).
+    """
+
+    centre: np.ndarray
+    radius: float
+    braking: bool = False
+
+
+class WaypointLayer:
+    """Turns a mission into centre targets, stop timing and stop records.
+
+    Parameters
+    ----------
+    mission : Circle or Waypoints
+    radius_map : RadiusMap
+    stop_radius : float
+        Revolving radius while lining up a stop, m (small: short, predictable braking).
+    decel : float
+        Braking rate of the driving speed for stops, rad/s^2.
+    align_tolerance : float
+        How close (m) the centre must be to its target, and the predicted rest
+        point to the waypoint, before braking may start.
+    rest_speed : float
+        Shell angular speed (rad/s) below which a stopped robot counts as at rest.
+    """
+
+    def __init__(self, mission, radius_map: RadiusMap, *, stop_radius: float = 0.2, decel: float = 1.0,
+                 align_tolerance: float = 0.02, rest_speed: float = 0.02):
+        if not isinstance(mission, (Circle, Waypoints)):
+            raise ValueError(f"mission must be a Circle or Waypoints, got {type(mission).__name__}")
+        if not radius_map.R_min < stop_radius < radius_map.R_max:
+            raise ValueError(f"stop_radius = {stop_radius} m is out of range: valid is "
+                             f"({radius_map.R_min:.3f}, {radius_map.R_max:.3f}) m")
+        self.mission, self.radius_map = mission, radius_map
+        self.stop_radius, self.align_tolerance, self.rest_speed = stop_radius, align_tolerance, rest_speed
+        self.predictor = StopPredictor(radius_map, decel)
+        self.reset()
+
+    def reset(self):
+        """Start the mission again."""
+        self.index = 0
+        self.phase = "track"  # track -> braking -> resting -> (next waypoint) ... -> done
+        self.stops: list[dict] = []
+        self._last_miss = math.inf
+        self._goal, self._goal_index = None, -1
+
+    @property
+    def done(self) -> bool:
+        """True once every waypoint has been visited (never for a circle)."""
+        return self.phase == "done"
+
+    def _stop_centre(self, wp_point, centre_now) -> np.ndarray:
+        w = float(self.radius_map.omega(self.stop_radius))
+        rho = float(np.linalg.norm(np.array([self.stop_radius, 0.0]) + self.predictor.displacement(w)))
+        away = centre_now - wp_point
+        norm = float(np.linalg.norm(away))
+        direction = away / norm if norm > 1e-9 else np.array([1.0, 0.0])
+        return wp_point + rho * direction
+
+    def target(self, t: float, position, heading: float, centre, omega0: float, shell_rate: float) -> Target:
+        """The target for this step.
+
+        Parameters
+        ----------
+        t : float
+            Time, s.
+        position : array_like (2,)
+            Measured shell-centre position, m.
+        heading : float
+            Measured gamma, rad.
+        centre : array_like (2,)
+            Current centre of curvature estimate o, m.
+        omega0 : float
+            Current driving-speed command, rad/s.
+        shell_rate : float
+            Magnitude of the shell's angular velocity, rad/s (to detect rest).
+        """
+        mission = self.mission
+        if isinstance(mission, Circle):
+            return Target(mission.centre, mission.radius)
+        if self.phase == "done":
+            return Target(np.asarray(position, float), self.radius_map.R_min, braking=True)
+        wp = mission.points[self.index]
+        if not wp.stop:
+            return self._pass_target(wp, position)
+        if self.phase == "track":
+            if self._goal_index != self.index:
+                self._goal, self._goal_index = self._stop_centre(wp.point, np.asarray(centre, float)), self.index
+            aligned = np.linalg.norm(np.asarray(centre) - self._goal) < self.align_tolerance
+            miss = float(np.linalg.norm(self.predictor.rest_point(position, heading, omega0) - wp.point))
+            closest = miss > self._last_miss  # the predicted rest point just passed its closest approach
+            self._last_miss = miss
+            if aligned and closest and miss < self.align_tolerance:
+                self.phase = "braking"
+            return Target(self._goal, self.stop_radius, braking=self.phase == "braking")
+        if self.phase == "braking" and omega0 <= 0.0:
+            self.phase = "resting"
+        if self.phase == "resting" and shell_rate < self.rest_speed:
+            error = float(np.linalg.norm(np.asarray(position) - wp.point))
+            self.stops.append({"point": wp.point.tolist(), "time": t, "error": error})
+            self._advance()
+        return Target(self._goal, self.stop_radius, braking=True)
+
+    def _pass_target(self, wp, position) -> Target:
+        v = float(np.linalg.norm(wp.velocity))
+        omega0 = _speed_to_omega(self.radius_map, v)
+        radius = float(self.radius_map.radius(omega0))
+        # revolving counter-clockwise, velocity = Omega z x (s - o): s - o points 90 deg clockwise of v
+        direction = np.array([wp.velocity[1], -wp.velocity[0]]) / v
+        if np.linalg.norm(np.asarray(position) - wp.point) < self.mission.tolerance:
+            self._advance()
+        return Target(wp.point - radius * direction, radius)
+
+    def _advance(self):
+        self.index += 1
+        self._last_miss = math.inf
+        self.phase = "done" if self.index >= len(self.mission.points) else "track"
+
+
+def _speed_to_omega(radius_map: RadiusMap, speed: float) -> float:
+    """Driving speed (rad/s) whose quasi-stable centre speed is ``speed`` (m/s)."""
+    w = radius_map.omegas
+    v = radius_map.rate(w) * radius_map.radius(w)
+    if not 0 < speed <= v.max():
+        raise ValueError(f"pass-through speed {speed!r} m/s is out of range: valid is (0, {v.max():.3f}] m/s")
+    return float(np.interp(speed, v, w))

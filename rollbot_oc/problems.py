@@ -1,0 +1,422 @@
+"""Scenario files (``problems/*.toml``), running them under a controller, and their metrics.
+
+Schema (TOML; SI units, degrees only in keys ending in ``_deg``)::
+
+    name        = "circle_R035"          # required
+    description = "..."                  # optional
+    kind        = "circle"               # required: "circle", "waypoints" or "open_loop"
+    duration    = 300.0                  # required: longest run, s
+    dt          = 0.01                   # optional: control period, s
+
+    [start]                              # optional: where the robot rests at t = 0
+    position    = [0.35, 0.0]            # m
+    heading_deg = 0.0                    # azimuth of the motor axis' horizontal projection
+
+    [floor]                              # optional: the floor the plant rolls on
+    slope_deg     = 1.0
+    slope_dir_deg = -45.0                # downhill direction
+
+    [circle]                             # kind = "circle": revolve about a set point
+    centre      = [0.0, 0.0]             # m
+    radius      = 0.35                   # m
+    settle_time = 120.0                  # s: deviations are measured after this (and after reaching)
+    reach_tolerance = 0.05               # m: "reached" = within this of the circle for 10 s
+
+    [waypoints]                          # kind = "waypoints": stop at each point in turn
+    stops = [[0.0, 0.0], [0.0, 1.2]]     # m
+
+    [open_loop]                          # kind = "open_loop": constant driving speeds
+    speeds    = [0.5, 1.0, 3.0]          # rad/s
+    ramp_rate = 0.5                      # rad/s^2
+
+    [sensor]                             # optional: measurement noise and latency (seeded)
+    position_noise = 0.001               # m
+    angle_noise    = 0.003               # rad
+    gyro_noise     = 0.0                 # rad/s
+    speed_noise    = 0.0                 # rad/s
+    latency        = 1                   # control periods
+
+    [params]                             # optional: robot parameter overrides (parameter-file keys)
+
+Unknown keys and tables, missing required keys and impossible values are
+rejected on load with a ``ValueError`` naming the file, the key and the
+valid range.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from rollbot_oc.control.missions import Circle, Waypoints, centre_of_curvature
+from rollbot_oc.dynamics import rest_state
+from rollbot_oc.params import RollbotParams
+from rollbot_oc.simulate import Sensor, SimulationResult, simulate
+
+__all__ = ["Problem", "load_problem", "make_controller", "run_problem", "run_open_loop", "compute_metrics", "RunResult",
+           "CONTROLLERS", "REACH_HOLD"]
+
+KINDS = ("circle", "waypoints", "open_loop")
+CONTROLLERS = ("pid", "nmpc")
+REACH_HOLD = 10.0  # s the robot must stay within reach_tolerance of the circle to count as arrived
+
+_TOP_KEYS = {"name", "description", "kind", "duration", "dt", "start", "floor", "circle", "waypoints",
+             "open_loop", "sensor", "params"}
+_TABLE_KEYS = {
+    "start": {"position", "heading_deg"},
+    "floor": {"slope_deg", "slope_dir_deg"},
+    "circle": {"centre", "radius", "settle_time", "reach_tolerance"},
+    "waypoints": {"stops"},
+    "open_loop": {"speeds", "ramp_rate"},
+    "sensor": {"position_noise", "angle_noise", "gyro_noise", "speed_noise", "latency"},
+}
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A scenario: robot, floor, start, mission and measurement model.
+
+    Attributes
+    ----------
+    name, description : str
+    kind : {"circle", "waypoints", "open_loop"}
+    duration : float
+        Longest run, s.
+    dt : float
+        Control period, s.
+    params : RollbotParams
+        The plant (slope included).
+    start_position : numpy.ndarray (2,)
+        Initial shell-centre position (at rest, pendulum down), m.
+    start_heading : float
+        Initial motor-axis azimuth, rad.
+    mission : Circle, Waypoints or None
+    settle_time : float
+        Circle problems: deviations are measured after this time, s.
+    reach_tolerance : float
+        Circle problems: distance from the circle that counts as arrived, m.
+    speeds : tuple of float
+        Open-loop problems: driving speeds, rad/s.
+    ramp_rate : float
+        Open-loop problems: driving-speed ramp, rad/s^2.
+    sensor : dict
+        ``Sensor`` settings (noise, latency); the seed comes with each run.
+    source : str
+        Where the problem came from (file path).
+    """
+
+    name: str
+    kind: str
+    duration: float
+    params: RollbotParams
+    description: str = ""
+    dt: float = 0.01
+    start_position: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    start_heading: float = 0.0
+    mission: Circle | Waypoints | None = None
+    settle_time: float = 0.0
+    reach_tolerance: float = 0.05
+    speeds: tuple = ()
+    ramp_rate: float = 0.5
+    sensor: dict = field(default_factory=dict)
+    source: str = "<problem>"
+
+    def initial_state(self) -> np.ndarray:
+        """The start state: at rest at ``start_position`` with heading ``start_heading``."""
+        return rest_state(self.params, position=self.start_position, heading=self.start_heading)
+
+    def with_duration(self, duration: float) -> "Problem":
+        """The same problem with another duration (s), for quick runs."""
+        return replace(self, duration=float(duration))
+
+
+def _number(data, key, source, low=None, high=None, integer=False, required=False, default=None):
+    if key not in data:
+        if required:
+            raise ValueError(f"{source}: missing required key '{key}'")
+        return default
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{source}: key '{key}' = {value!r} must be a finite number")
+    if integer and int(value) != value:
+        raise ValueError(f"{source}: key '{key}' = {value!r} must be a whole number")
+    if (low is not None and value < low) or (high is not None and value > high):
+        raise ValueError(f"{source}: key '{key}' = {value!r} is out of range: valid is [{low}, {high}]")
+    return int(value) if integer else float(value)
+
+
+def _points(data, key, source, count=None):
+    value = data.get(key)
+    ok = isinstance(value, list) and value and all(
+        isinstance(p, list) and len(p) == 2
+        and all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in p)
+        for p in value)
+    if not ok or (count is not None and len(value) != count):
+        raise ValueError(f"{source}: key '{key}' = {value!r} must be a list of [x, y] pairs in m")
+    return [np.array(p, float) for p in value]
+
+
+def _check_keys(data: dict, allowed: set, source: str):
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        raise ValueError(f"{source}: unknown key(s) {', '.join(unknown)}; valid keys are {', '.join(sorted(allowed))}")
+
+
+def load_problem(path: str | Path, base: RollbotParams | None = None) -> Problem:
+    """Read and validate a problem file (schema in the module doc).
+
+    ``base`` is the robot the file's ``[params]`` and ``[floor]`` apply to
+    (the paper's prototype by default).
+
+    Raises
+    ------
+    ValueError
+        Missing file, invalid TOML, unknown or missing keys, impossible values.
+    """
+    path = Path(path)
+    source = str(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"problem file {path} does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"problem file {path} is not valid TOML: {exc}") from None
+    return problem_from_dict(data, source, base)
+
+
+def problem_from_dict(data: dict, source: str = "<problem>", base: RollbotParams | None = None) -> Problem:
+    """Validate a problem given as a mapping (the parsed TOML); see ``load_problem``."""
+    _check_keys(data, _TOP_KEYS, source)
+    for table, keys in _TABLE_KEYS.items():
+        if table in data:
+            if not isinstance(data[table], dict):
+                raise ValueError(f"{source}: '{table}' must be a table")
+            _check_keys(data[table], keys, f"{source} [{table}]")
+    name = data.get("name")
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"{source}: missing required key 'name' (a non-empty string)")
+    kind = data.get("kind")
+    if kind not in KINDS:
+        raise ValueError(f"{source}: key 'kind' = {kind!r}; valid are {', '.join(KINDS)}")
+    if kind not in data:
+        raise ValueError(f"{source}: kind = '{kind}' needs a [{kind}] table")
+    duration = _number(data, "duration", source, 1.0, 3600.0, required=True)
+    dt = _number(data, "dt", source, 1e-3, 0.1, default=0.01)
+    params_table = {**(base or RollbotParams()).to_file_dict(), **data.get("params", {})}
+    floor = data.get("floor", {})
+    for key in ("slope_deg", "slope_dir_deg"):
+        if key in floor:
+            params_table[key] = _number(floor, key, f"{source} [floor]")
+    params = RollbotParams.from_file_dict(params_table, source=f"{source} [params]")
+    start = data.get("start", {})
+    position = _points({"p": [start.get("position", [0.0, 0.0])]}, "p", f"{source} [start] position")[0]
+    heading = math.radians(_number(start, "heading_deg", f"{source} [start]", default=0.0))
+    sensor_table = data.get("sensor", {})
+    sensor = {key: _number(sensor_table, key, f"{source} [sensor]", 0.0, 1.0) for key in
+              ("position_noise", "angle_noise", "gyro_noise", "speed_noise") if key in sensor_table}
+    if "latency" in sensor_table:
+        sensor["latency"] = _number(sensor_table, "latency", f"{source} [sensor]", 0, 100, integer=True)
+    common = dict(name=name, kind=kind, duration=duration, dt=dt, params=params,
+                  description=str(data.get("description", "")), start_position=position, start_heading=heading,
+                  sensor=sensor, source=source)
+    table = data[kind]
+    where = f"{source} [{kind}]"
+    if kind == "circle":
+        centre = _points({"c": [table.get("centre", [0.0, 0.0])]}, "c", f"{where} centre")[0]
+        radius = _number(table, "radius", where, 0.01, 100.0, required=True)
+        settle = _number(table, "settle_time", where, 0.0, duration, default=0.0)
+        tol = _number(table, "reach_tolerance", where, 1e-3, 10.0, default=0.05)
+        return Problem(mission=Circle(centre, radius), settle_time=settle, reach_tolerance=tol, **common)
+    if kind == "waypoints":
+        return Problem(mission=Waypoints(tuple(_points(table, "stops", where))), **common)
+    speeds = table.get("speeds")
+    if not (isinstance(speeds, list) and speeds):
+        raise ValueError(f"{where}: key 'speeds' = {speeds!r} must be a non-empty list of driving speeds in rad/s")
+    speeds = tuple(_number({"s": s}, "s", f"{where} speeds", 1e-3, params.max_speed) for s in speeds)
+    ramp = _number(table, "ramp_rate", where, 1e-3, 100.0, default=0.5)
+    return Problem(speeds=speeds, ramp_rate=ramp, **common)
+
+
+def make_controller(name: str, problem: Problem, params: RollbotParams | None = None, **options):
+    """A controller by name for a problem.
+
+    Parameters
+    ----------
+    name : {"pid", "nmpc"}
+    problem : Problem
+    params : RollbotParams, optional
+        The robot the controller believes in; the problem's robot on a level
+        floor by default (controllers do not know the slope; they must reject it).
+    **options
+        Passed to the controller (for the PID: ``gains=PIDGains(...)``).
+    """
+    believed = params or problem.params.replace(slope=0.0)
+    if name == "pid":
+        from rollbot_oc.control.pid import QuasiStablePID
+
+        return QuasiStablePID(problem.mission, believed, dt=problem.dt, **options)
+    if name == "nmpc":
+        from rollbot_oc.control.nmpc import NMPC
+
+        return NMPC(problem.mission, believed, dt=problem.dt, **options)
+    raise ValueError(f"controller = {name!r}; valid are {', '.join(CONTROLLERS)}")
+
+
+@dataclass
+class RunResult:
+    """A controller's run on a problem: the simulation and its metrics."""
+
+    problem: Problem
+    controller: str
+    seed: int
+    result: SimulationResult
+    metrics: dict
+    centres: np.ndarray | None = None
+    wall_time: float = 0.0
+
+
+def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: RollbotParams | None = None,
+                duration: float | None = None, **options) -> RunResult:
+    """Run a circle or waypoint problem in closed loop and compute its metrics.
+
+    Parameters
+    ----------
+    problem : Problem
+    controller : str or Controller
+        ``"pid"``, ``"nmpc"`` or a controller object.
+    seed : int
+        Seed of the sensor noise.
+    params : RollbotParams, optional
+        The controller's model of the robot (default: the plant's, level floor).
+    duration : float, optional
+        Override the problem's duration, s.
+    **options
+        Passed to ``make_controller``.
+    """
+    if problem.kind == "open_loop":
+        raise ValueError(f"{problem.source}: open-loop problems have no controller; use run_open_loop")
+    name = controller if isinstance(controller, str) else type(controller).__name__
+    ctrl = make_controller(controller, problem, params, **options) if isinstance(controller, str) else controller
+    sensor = Sensor(seed=seed, **problem.sensor)
+    start = time.perf_counter()
+    result = simulate(problem.initial_state(), duration or problem.duration, params=problem.params,
+                      controller=ctrl, dt=problem.dt, sensor=sensor)
+    wall = time.perf_counter() - start
+    centres = _centres(result, getattr(ctrl, "map", None))
+    metrics = compute_metrics(problem, result, centres)
+    metrics.update(controller=name, seed=seed, wall_time=wall)
+    return RunResult(problem, name, seed, result, metrics, centres, wall)
+
+
+def _centres(result: SimulationResult, radius_map) -> np.ndarray | None:
+    """The paper's centre of curvature along a run (quasi-stable radius at the measured speed)."""
+    if radius_map is None:
+        from rollbot_oc.quasi_stable import RadiusMap
+
+        radius_map = RadiusMap(result.params.replace(slope=0.0))
+    radius = radius_map.radius(np.clip(result.driving_speed, 0.0, radius_map.omega_max))
+    return centre_of_curvature(result.position, result.heading, radius)
+
+
+def compute_metrics(problem: Problem, result: SimulationResult, centres=None) -> dict:
+    """The metrics JSON of a run (SI units); see the README for every key."""
+    t = result.t
+    steps = result.step_times if result.step_times is not None and result.step_times.size else np.zeros(1)
+    out = {
+        "problem": problem.name,
+        "completed": False,
+        "completion_time": None,
+        "avg_speed": None,
+        "stop_errors": [],
+        "avg_deviation": None,
+        "max_deviation": None,
+        "max_motor_torque": float(np.abs(result.motor_torque).max()) if result.motor_torque.size else 0.0,
+        "max_driving_speed": float(np.abs(result.driving_speed).max()),
+        "min_normal_force": float(result.normal_force.min()) if result.normal_force.size else None,
+        "min_slide_margin": float(result.slide_margin.min()) if result.slide_margin.size else None,
+        "step_time_min": float(steps.min()),
+        "step_time_median": float(np.median(steps)),
+        "step_time_p95": float(np.percentile(steps, 95)),
+        "step_time_max": float(steps.max()),
+        "events": [{"kind": e.kind, "time": e.time, "margin": e.margin} for e in result.events],
+        "duration": float(t[-1]),
+        "torque_limit_violation": bool(np.abs(result.motor_torque).max(initial=0.0) > problem.params.max_torque
+                                       * (1 + 1e-6)),
+        "speed_limit_violation": bool(np.abs(result.driving_speed).max() > problem.params.max_speed * (1 + 1e-9)),
+    }
+    mission = problem.mission
+    if isinstance(mission, Circle):
+        out.update(_circle_metrics(problem, mission, result))
+    elif isinstance(mission, Waypoints):
+        out.update(_waypoint_metrics(problem, mission, result))
+    out["completed"] = bool(out["completed"] and not result.events)
+    return out
+
+
+def _circle_metrics(problem: Problem, circle: Circle, result: SimulationResult) -> dict:
+    t, s = result.t, result.position
+    deviation = circle.deviation(s)
+    inside = deviation < problem.reach_tolerance
+    hold = int(round(REACH_HOLD / result.dt))
+    # first index from which the robot stays within tolerance for REACH_HOLD seconds
+    run = np.convolve(inside.astype(int), np.ones(hold, int), mode="valid") if len(inside) >= hold else np.array([])
+    reached = np.flatnonzero(run == hold)
+    reach_time = float(t[reached[0]]) if reached.size else None
+    start_distance = float(circle.deviation(s[:, :1])[0])
+    measure_from = max(problem.settle_time, reach_time if reach_time is not None else problem.settle_time)
+    window = t >= measure_from
+    out = {"reach_time": reach_time, "completion_time": reach_time, "settle_time": measure_from,
+           "avg_deviation": None, "max_deviation": None}
+    if reach_time is not None and reach_time > 0:
+        out["avg_speed"] = max(start_distance - problem.reach_tolerance, 0.0) / reach_time
+    if window.any() and t[-1] - measure_from >= REACH_HOLD:
+        out["avg_deviation"] = float(deviation[window].mean())
+        out["max_deviation"] = float(deviation[window].max())
+    out["completed"] = reach_time is not None and out["avg_deviation"] is not None
+    return out
+
+
+def _waypoint_metrics(problem: Problem, waypoints: Waypoints, result: SimulationResult) -> dict:
+    stops = result.info.get("stops", [])
+    errors = [float(stop["error"]) for stop in stops]
+    out = {"stop_errors": errors, "stop_times": [float(stop["time"]) for stop in stops]}
+    if len(stops) == len(waypoints.stops):
+        path = [problem.start_position] + waypoints.stops
+        length = sum(float(np.linalg.norm(b - a)) for a, b in zip(path[:-1], path[1:]))
+        out["completion_time"] = float(stops[-1]["time"])
+        out["avg_speed"] = length / out["completion_time"]
+        out["completed"] = True
+    return out
+
+
+def run_open_loop(problem: Problem) -> dict:
+    """Run an open-loop problem: each driving speed measured in simulation against the quasi-stable theory.
+
+    Returns
+    -------
+    dict
+        ``runs``: for each speed the measured ``R0``, ``Omega``, ``xi`` and
+        ``settled``, the theory's values (``*_theory``) and the relative errors
+        ``R0_error`` and ``Omega_error``; ``max_R0_error`` over all speeds.
+    """
+    from rollbot_oc.experiments import open_loop_run
+    from rollbot_oc.quasi_stable import quasi_stable_curve
+
+    if problem.kind != "open_loop":
+        raise ValueError(f"{problem.source}: kind = '{problem.kind}' is not an open-loop problem")
+    theory = quasi_stable_curve(problem.speeds, problem.params.replace(slope=0.0))
+    runs = []
+    for speed, qs in zip(problem.speeds, theory):
+        measured, _ = open_loop_run(speed, problem.params, ramp_rate=problem.ramp_rate, dt=problem.dt)
+        row = measured.to_dict()
+        row.update(R0_theory=qs.R0, Omega_theory=qs.Omega, xi_theory=qs.xi,
+                   R0_error=measured.R0 / qs.R0 - 1.0, Omega_error=measured.Omega / qs.Omega - 1.0,
+                   xi_error=measured.xi - qs.xi)
+        runs.append(row)
+    return {"problem": problem.name, "runs": runs, "max_R0_error": max(abs(r["R0_error"]) for r in runs),
+            "completed": all(r["settled"] for r in runs)}

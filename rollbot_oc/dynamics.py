@@ -180,9 +180,9 @@ def pendulum_mass(theta, theta_dot, theta_ddot, *, m, r0, phi) -> PointMass:
     return PointMass(m, position, velocity, acceleration)
 
 
-def gravity_vector(g, slope, slope_dir):
-    """Gravity in the floor frame for a floor inclined by ``slope`` (rad) downhill towards azimuth ``slope_dir`` (rad)."""
-    return g * ca.vertcat(ca.sin(slope) * ca.cos(slope_dir), ca.sin(slope) * ca.sin(slope_dir), -ca.cos(slope))
+def gravity_vector(g, tilt_x, tilt_y):
+    """Gravity in the floor frame, m/s^2, from its in-plane part per g (``RollbotParams.tilt_x``, ``tilt_y``)."""
+    return g * ca.vertcat(tilt_x, tilt_y, -ca.sqrt(1 - tilt_x**2 - tilt_y**2))
 
 
 @dataclass(frozen=True)
@@ -236,7 +236,7 @@ def _rollbot_terms(x, u, p, w):
     omega = x[OMEGA]
     theta, theta_dot, theta_ddot = x[THETA], x[THETA_DOT], u[0]
     pendulum = pendulum_mass(theta, theta_dot, theta_ddot, m=P["m"], r0=P["r0"], phi=P["phi"])
-    gravity = gravity_vector(P["g"], P["slope"], P["slope_dir"])
+    gravity = gravity_vector(P["g"], P["tilt_x"], P["tilt_y"])
     force, ext_torque = w[0:3], w[3:6]
     damping = -P["k0"] * omega
     dyn = shell_dynamics(T, omega, [pendulum], M=P["M"], I=P["I"], R=P["R"],

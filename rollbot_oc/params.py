@@ -37,10 +37,12 @@ from rollbot_oc.outputs import atomic_write_text
 
 __all__ = ["RollbotParams", "PARAM_VECTOR_FIELDS", "load_params", "save_params"]
 
-# Order of the numeric parameter vector ``p`` fed to every symbolic Function.
+# Order of the numeric parameter vector ``p`` fed to every symbolic Function.  The floor's slope enters
+# as its tilt vector (tilt_x, tilt_y) = sin(slope) (cos slope_dir, sin slope_dir): the in-plane part of
+# gravity per g, smooth at zero slope (so it can be estimated and differentiated there).
 PARAM_VECTOR_FIELDS = (
     "R", "M", "I", "phi", "r0", "m", "k0", "g", "mu",
-    "max_torque", "max_speed", "max_accel", "slope", "slope_dir",
+    "max_torque", "max_speed", "max_accel", "tilt_x", "tilt_y",
 )
 
 # File key -> (attribute, scale from file units to SI).
@@ -161,6 +163,16 @@ class RollbotParams:
     def M(self) -> float:
         """Shell body mass used in the equations, ``M_s + m_b``, kg."""
         return self.M_s + self.m_b
+
+    @property
+    def tilt_x(self) -> float:
+        """In-plane gravity along the floor's x axis, per g: ``sin(slope) cos(slope_dir)``."""
+        return math.sin(self.slope) * math.cos(self.slope_dir)
+
+    @property
+    def tilt_y(self) -> float:
+        """In-plane gravity along the floor's y axis, per g: ``sin(slope) sin(slope_dir)``."""
+        return math.sin(self.slope) * math.sin(self.slope_dir)
 
     @property
     def total_mass(self) -> float:

@@ -42,18 +42,22 @@ the shell (3) [N m], floor frame; zero unless given.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
-from rollbot_oc.rotations import matrix_to_quat_np, quat_derivative, quat_to_matrix, rot_y_np, rot_z_np, skew
+from rollbot_oc.rotations import (
+    matrix_to_quat_np, quat_derivative, quat_multiply_np, quat_to_matrix, rot_y_np, rot_z_np, skew,
+)
 
 __all__ = [
     "STATE_NAMES", "STATE_UNITS", "NX", "NU", "NW", "POS", "QUAT", "OMEGA", "THETA", "THETA_DOT",
     "PointMass", "ShellDynamics", "shell_dynamics", "pendulum_mass", "gravity_vector",
     "SymbolicModel", "symbolic_model", "RollbotModel", "rest_state",
+    "NZ", "REDUCED_NAMES", "ReducedModel", "reduced_model", "to_reduced", "from_reduced",
 ]
 
 STATE_NAMES = ("x", "y", "qw", "qx", "qy", "qz", "wx", "wy", "wz", "theta", "theta_dot")
@@ -384,3 +388,68 @@ class RollbotModel:
     def power(self, x, u=None, w=None) -> np.ndarray:
         """Motor, damping and external power, W (rows for a trajectory)."""
         return self._call(self.sym.power, x, u, w)
+
+
+# --- The reduced model: the spin symmetry of the spherical shell -------------------------------
+#
+# The shell is spherically symmetric, so turning it about its motor axis by an angle a while turning
+# the motor back by a leaves every physical quantity unchanged: the dynamics depend on the shell
+# orientation T and the motor angle theta only through the pendulum frame P = T Rz(theta).  The
+# reduced state z (10) = (x, y, quaternion of P, omega, theta_dot) is what predictions and
+# optimisation need; the shell's own angle about its axis only matters for drawing it.
+
+NZ = 10
+REDUCED_NAMES = ("x", "y", "pw", "px", "py", "pz", "wx", "wy", "wz", "theta_dot")
+
+
+@dataclass(frozen=True)
+class ReducedModel:
+    """Rollbot's equations in the pendulum frame (10 states), as CasADi Functions over ``(z, u, p, w)``.
+
+    Attributes
+    ----------
+    f : Function (z, u, p, w) -> zdot
+    reaction, margins, motor_torque : Function (z, u, p, w) -> ...
+        As in ``SymbolicModel``.
+    """
+
+    f: ca.Function
+    reaction: ca.Function
+    margins: ca.Function
+    motor_torque: ca.Function
+
+
+@functools.lru_cache(maxsize=None)
+def reduced_model() -> ReducedModel:
+    """Build (once per process) the pendulum-frame model from the full one."""
+    sym = symbolic_model()
+    z, u = ca.SX.sym("z", NZ), ca.SX.sym("u", NU)
+    p, w = ca.SX.sym("p", len(PARAM_VECTOR_FIELDS)), ca.SX.sym("w", NW)
+    x = ca.vertcat(z[0:9], 0.0, z[9])  # the full state with the shell turned so that theta = 0
+    xdot = sym.f(x, u, p, w)
+    motor_axis = ca.mtimes(quat_to_matrix(z[2:6]), _EZ)
+    frame_rate = z[6:9] + z[9] * motor_axis  # angular velocity of the pendulum frame
+    zdot = ca.vertcat(xdot[0:2], quat_derivative(z[2:6], frame_rate), xdot[6:9], u)
+    ins, names = [z, u, p, w], ["z", "u", "p", "w"]
+    return ReducedModel(
+        ca.Function("rollbot_reduced_f", ins, [zdot], names, ["zdot"]),
+        ca.Function("rollbot_reduced_reaction", ins, [sym.reaction(x, u, p, w)], names, ["N"]),
+        ca.Function("rollbot_reduced_margins", ins, [sym.margins(x, u, p, w)], names, ["margins"]),
+        ca.Function("rollbot_reduced_motor_torque", ins, [sym.motor_torque(x, u, p, w)], names, ["tau_m"]),
+    )
+
+
+def to_reduced(x) -> np.ndarray:
+    """Reduced state (10,) of a full state (11,): the pendulum frame ``P = T Rz(theta)``."""
+    x = np.asarray(x, float)
+    half = 0.5 * x[THETA]
+    q = quat_multiply_np(x[QUAT], [math.cos(half), 0.0, 0.0, math.sin(half)])
+    return np.concatenate([x[POS], q, x[OMEGA], [x[THETA_DOT]]])
+
+
+def from_reduced(z, theta: float = 0.0) -> np.ndarray:
+    """A full state (11,) with motor angle ``theta`` (rad) for a reduced state (10,)."""
+    z = np.asarray(z, float)
+    half = -0.5 * theta
+    q = quat_multiply_np(z[2:6], [math.cos(half), 0.0, 0.0, math.sin(half)])
+    return np.concatenate([z[0:2], q, z[6:9], [theta, z[9]]])

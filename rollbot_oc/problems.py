@@ -303,12 +303,16 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
     name = controller if isinstance(controller, str) else type(controller).__name__
     ctrl = make_controller(controller, problem, params, **options) if isinstance(controller, str) else controller
     sensor = Sensor(seed=seed, **problem.sensor)
+    prepare = getattr(ctrl, "prepare", None)
+    if callable(prepare):  # offline planning happens before the run starts
+        prepare(problem.initial_state())
     start = time.perf_counter()
     result = simulate(problem.initial_state(), duration or problem.duration, params=problem.params,
                       controller=ctrl, dt=problem.dt, sensor=sensor)
     wall = time.perf_counter() - start
     centres = _centres(result, getattr(ctrl, "map", None))
     metrics = compute_metrics(problem, result, centres)
+    metrics.update({k: v for k, v in result.info.items() if k != "stops"})
     metrics.update(controller=name, seed=seed, wall_time=wall)
     return RunResult(problem, name, seed, result, metrics, centres, wall)
 

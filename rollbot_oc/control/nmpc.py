@@ -1,0 +1,572 @@
+"""Nonlinear MPC: track minimum-time plans over the full dynamics, in real time, offset-free on a slope.
+
+Structure (do-mpc's separation: model, controller, simulator over one model):
+
+* **Plans** (``control.ocp``): before the run, minimum-time rest-to-rest legs
+  through the stops, or a minimum-time entry onto the quasi-stable orbit of
+  the target circle, computed over the full dynamics on a level floor.
+* **Tracking NMPC**: every ``h = 0.1`` s it solves a multiple-shooting
+  problem over ``N = 30`` intervals (3 s, about half a revolution period and
+  half the 7 s recovery time) that keeps the predicted reduced state near the
+  plan, with the motor's torque, speed and acceleration limits and the
+  contact margins as constraints.  The first interval's motor acceleration
+  is applied (the plant's motor follows it at 100 Hz).
+* **Offset-free**: a Kalman filter estimates the floor's tilt vector from the
+  mismatch between the measured and the predicted shell angular velocity
+  (its Jacobian by AD); the prediction model uses the estimate.  It absorbs
+  the slope and, with them, other steady model errors (masses, damping).
+* **Delay compensation**: a measurement that is ``L`` periods old is
+  predicted forward over the commands applied since.
+* **Warm start**: the previous solution shifted by one interval (primal and,
+  for IPOPT, dual values).
+* **Never crash the loop**: a failed or late solve (longer than ``h``) falls
+  back to the shifted previous solution; after ``max_failures`` consecutive
+  failures the paper's PID takes over for ``pid_time`` seconds.  Every solve's
+  status and time, and every fallback, is counted in ``report()``.
+
+Measured (what a real Rollbot would know): the pose from motion capture
+(position, orientation), the shell angular velocity from a gyroscope and the
+motor angle and speed from the encoder; that is the whole state.
+
+Solvers: ``"ipopt"`` (exact Hessian, warm-started; always works) and
+``"rti"``, a real-time iteration (one Gauss-Newton SQP step per sample with a
+QP solved by CasADi's ``qrqp``), much faster; ``benchmarks/bench_nmpc.py``
+measures both and the default is chosen from it.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import casadi as ca
+import numpy as np
+
+from rollbot_oc.control.missions import Circle, Waypoints
+from rollbot_oc.control.ocp import (
+    NP, OCPSettings, OrbitEntry, RestToRest, interval_function, orbit_state, stage_function,
+)
+from rollbot_oc.dynamics import NZ, reduced_model, to_reduced
+from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
+from rollbot_oc.simulate import Command, Observation
+
+__all__ = ["NMPCSettings", "NMPC", "TrackingSolver", "TiltEstimator", "Reference"]
+
+_TILT = [PARAM_VECTOR_FIELDS.index("tilt_x"), PARAM_VECTOR_FIELDS.index("tilt_y")]
+
+
+@dataclass(frozen=True)
+class NMPCSettings:
+    """Horizon, weights, limits and fallbacks of the NMPC (SI units).
+
+    Attributes
+    ----------
+    N : int
+        Shooting intervals of the horizon.
+    h : float
+        Interval length and replanning period, s.
+    substeps : int
+        RK4 steps per interval in the prediction.
+    solver : {"ipopt", "rti"}
+    w_position, w_attitude, w_omega, w_speed, w_accel : float
+        Tracking weights on position (1/m^2), pendulum-frame quaternion,
+        shell angular velocity (s^2/rad^2), driving speed (s^2/rad^2) and
+        acceleration (s^4/rad^2) deviations from the plan.
+    terminal : float
+        Factor on the state weights at the end of the horizon.
+    torque_margin : float
+        Fraction of the torque limit the NMPC may use.
+    normal_margin : float
+        Least normal force as a fraction of the weight.
+    friction_margin : float
+        Largest tangential force as a fraction of ``mu`` times the normal force.
+    max_failures : int
+        Consecutive failed or late solves before the PID takes over.
+    pid_time : float
+        How long the PID keeps control after taking over, s.
+    estimate_tilt : bool
+        Estimate the floor tilt (offset-free); off gives the nominal model.
+    tilt_process_noise : float
+        Random-walk rate of the tilt estimate, 1/sqrt(s).
+    gyro_sigma : float
+        Assumed one-step prediction error of the angular velocity, rad/s.
+    rest_speed : float
+        Shell angular speed below which a stopped robot is at rest, rad/s.
+    hold_time : float
+        Longest wait at a stop after its plan ends, s.
+    plan_slack : float
+        The tracked plans take this fraction longer than the fastest ones, and
+        spend the spare time on a smoother motor profile (least effort) on the
+        NMPC's own grid: margin for the feedback.
+    max_solve_time : float or None
+        A solve that takes longer (wall clock) counts as late and is not
+        used; ``None`` means the period ``h`` (real time).  A larger value
+        studies the controller without the real-time constraint.
+    plan : OCPSettings
+        Settings of the minimum-time plans.
+    """
+
+    N: int = 30
+    h: float = 0.1
+    substeps: int = 2
+    solver: str = "ipopt"
+    w_position: float = 400.0
+    w_attitude: float = 20.0
+    w_omega: float = 0.2
+    w_speed: float = 0.02
+    w_accel: float = 2e-3
+    terminal: float = 5.0
+    torque_margin: float = 0.95
+    normal_margin: float = 0.1
+    friction_margin: float = 0.95
+    max_failures: int = 3
+    pid_time: float = 2.0
+    estimate_tilt: bool = True
+    tilt_process_noise: float = 0.01
+    gyro_sigma: float = 2e-3
+    rest_speed: float = 0.02
+    hold_time: float = 3.0
+    plan_slack: float = 0.1
+    max_solve_time: float | None = None
+    plan: OCPSettings = field(default_factory=OCPSettings)
+
+    def __post_init__(self):
+        if self.solver not in ("ipopt", "rti"):
+            raise ValueError(f"NMPC solver = {self.solver!r}; valid are 'ipopt', 'rti'")
+        if not (isinstance(self.N, int) and self.N >= 2):
+            raise ValueError(f"NMPC N = {self.N!r} must be a whole number >= 2")
+        if not (math.isfinite(self.h) and 0 < self.h <= 0.5):
+            raise ValueError(f"NMPC h = {self.h!r} s is out of range: valid is (0, 0.5]")
+
+
+class TrackingSolver:
+    """The tracking NLP of the NMPC, built once, solved every period.
+
+    Parameters of each solve: the initial reduced state, the reference states
+    (10, N+1) and accelerations (N,), and the model parameter vector.
+    """
+
+    def __init__(self, params: RollbotParams, settings: NMPCSettings):
+        s = self.settings = settings
+        self.params = params
+        N = s.N
+        stage = stage_function(s.substeps, s.friction_margin).map(N)
+        Z, U = ca.MX.sym("Z", NZ, N + 1), ca.MX.sym("U", 1, N)
+        z0, Zr, Ur, p = ca.MX.sym("z0", NZ), ca.MX.sym("Zr", NZ, N + 1), ca.MX.sym("Ur", 1, N), ca.MX.sym("p", NP)
+        gs = stage(Z[:, :-1], U, Z[:, 1:], s.h, p)
+        weight = params.total_mass * params.g
+        tau = s.torque_margin * params.max_torque
+        g = ca.vertcat(Z[:, 0] - z0, ca.vec(gs))
+        self.lbg = np.concatenate([np.zeros(NZ), np.tile(np.concatenate([np.zeros(NZ), [-tau, s.normal_margin * weight,
+                                                                                          0.0]]), N)])
+        self.ubg = np.concatenate([np.zeros(NZ), np.tile(np.concatenate([np.zeros(NZ), [tau, np.inf, np.inf]]), N)])
+        # least-squares tracking residuals (Gauss-Newton friendly)
+        wq = np.sqrt([s.w_position] * 2 + [s.w_attitude] * 4 + [s.w_omega] * 3 + [s.w_speed])
+        scale = np.ones(N + 1)
+        scale[-1] = math.sqrt(s.terminal)
+        res_state = (Z - Zr) * ca.DM(np.outer(wq, scale))
+        res_input = math.sqrt(s.w_accel) * (U - Ur)
+        residual = ca.vertcat(ca.vec(res_state), ca.vec(res_input))
+        x = ca.vertcat(ca.vec(Z), ca.vec(U))
+        n = x.shape[0]
+        self.lbx, self.ubx = np.full(n, -np.inf), np.full(n, np.inf)
+        speed = 0.98 * params.max_speed
+        self.lbx[9:NZ * (N + 1):NZ], self.ubx[9:NZ * (N + 1):NZ] = -speed, speed
+        self.lbx[NZ * (N + 1):], self.ubx[NZ * (N + 1):] = -params.max_accel, params.max_accel
+        par = ca.vertcat(z0, ca.vec(Zr), ca.vec(Ur), p)
+        self.n_x, self.n_g = n, g.shape[0]
+        if s.solver == "ipopt":
+            nlp = {"x": x, "p": par, "f": 0.5 * ca.sumsqr(residual), "g": g}
+            opts = {"ipopt": {"print_level": 0, "sb": "yes", "max_iter": 50, "tol": 1e-6,
+                              "warm_start_init_point": "yes", "warm_start_bound_push": 1e-6,
+                              "warm_start_mult_bound_push": 1e-6, "mu_init": 1e-4},
+                    "print_time": False}
+            self.nlp = ca.nlpsol("nmpc_ipopt", "ipopt", nlp, opts)
+        else:
+            self._build_rti(x, par, residual, g)
+
+    def _build_rti(self, x, par, residual, g):
+        """One Gauss-Newton SQP step: QP in the step dx with Hessian J_r^T J_r, solved by qrqp."""
+        J_r = ca.jacobian(residual, x)
+        J_g = ca.jacobian(g, x)
+        H = ca.mtimes(J_r.T, J_r)
+        grad = ca.mtimes(J_r.T, residual)
+        self.linearise = ca.Function("nmpc_linearise", [x, par], [H, grad, g, J_g])
+        qp = {"h": H.sparsity(), "a": J_g.sparsity()}
+        self.qp = ca.conic("nmpc_qp", "qrqp", qp, {"print_iter": False, "print_header": False,
+                                                   "error_on_fail": False, "max_iter": 200})
+
+    def solve(self, z0, Zr, Ur, p, warm=None):
+        """Solve (or, for RTI, take one SQP step) from ``warm``; returns ``(x, lam, status, success, seconds)``."""
+        par = np.concatenate([z0, np.asarray(Zr).T.ravel(), np.ravel(Ur), p])
+        x_warm, lam_x, lam_g = warm if warm is not None else (None, None, None)
+        if x_warm is None:
+            x_warm = np.concatenate([np.asarray(Zr).T.ravel(), np.ravel(Ur)])
+            x_warm[:NZ] = z0
+        start = time.perf_counter()
+        if self.settings.solver == "ipopt":
+            args = dict(x0=x_warm, p=par, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
+            if lam_x is not None:
+                args.update(lam_x0=lam_x, lam_g0=lam_g)
+            sol = self.nlp(**args)
+            stats = self.nlp.stats()
+            status = stats["return_status"]
+            ok = bool(stats["success"]) or status == "Solved_To_Acceptable_Level"
+            out = (np.array(sol["x"]).ravel(), (np.array(sol["lam_x"]).ravel(), np.array(sol["lam_g"]).ravel()))
+        else:
+            H, grad, g, J = self.linearise(x_warm, par)
+            args = dict(h=H, g=grad, a=J, lba=self.lbg - np.array(g).ravel(), uba=self.ubg - np.array(g).ravel(),
+                        lbx=self.lbx - x_warm, ubx=self.ubx - x_warm)
+            if lam_x is not None:
+                args.update(lam_x0=lam_x, lam_a0=lam_g)
+            sol = self.qp(**args)
+            stats = self.qp.stats()
+            ok = bool(stats["success"])
+            status = stats.get("return_status", "success" if ok else "failed")
+            dx = np.array(sol["x"]).ravel()
+            out = (x_warm + dx, (np.array(sol["lam_x"]).ravel(), np.array(sol["lam_a"]).ravel()))
+        seconds = time.perf_counter() - start
+        ok = ok and bool(np.all(np.isfinite(out[0])))
+        return out[0], out[1], str(status), ok, seconds
+
+    def split(self, x):
+        """``(Z (10, N+1), U (N,))`` of a solution vector."""
+        N = self.settings.N
+        return x[:NZ * (N + 1)].reshape(N + 1, NZ).T, x[NZ * (N + 1):]
+
+
+@functools.lru_cache(maxsize=None)
+def _one_step(substeps: int, dt: float) -> ca.Function:
+    """``(z, u, p) -> (z_next, d omega_next / d tilt)`` over one control period, for the estimator."""
+    F = interval_function(substeps)
+    z, u, p = ca.SX.sym("z", NZ), ca.SX.sym("u"), ca.SX.sym("p", NP)
+    zn = F(z, u, dt, p)
+    return ca.Function("one_step", [z, u, p], [zn, ca.jacobian(zn[6:9], p)[:, _TILT]])
+
+
+class TiltEstimator:
+    """Kalman filter on the floor's tilt vector (in-plane gravity per g) from the shell's angular velocity.
+
+    Parameters
+    ----------
+    params : RollbotParams
+        Nominal model (its tilt is the prior).
+    dt : float
+        Control period, s.
+    process_noise : float
+        Random-walk rate of the tilt, 1/sqrt(s).
+    gyro_sigma : float
+        One-step prediction error of the angular velocity, rad/s.
+    """
+
+    def __init__(self, params: RollbotParams, dt: float, process_noise: float = 0.01, gyro_sigma: float = 2e-3):
+        self.p = params.vector()
+        self.dt = dt
+        self.q = process_noise**2 * dt
+        self.r = gyro_sigma**2
+        self.step = _one_step(1, dt)
+        self.reset()
+
+    def reset(self):
+        """Back to the prior (the nominal tilt, a 2 deg standard deviation)."""
+        self.tilt = self.p[_TILT].copy()
+        self.P = np.eye(2) * math.radians(2.0) ** 2
+
+    def update(self, z_prev, u_prev: float, z_now) -> np.ndarray:
+        """Fold in one period: state ``z_prev``, command ``u_prev`` (rad/s^2), then state ``z_now``."""
+        p = self.p.copy()
+        p[_TILT] = self.tilt
+        zn, H = self.step(z_prev, u_prev, p)
+        H = np.array(H)
+        residual = np.asarray(z_now)[6:9] - np.array(zn).ravel()[6:9]
+        self.P = self.P + np.eye(2) * self.q
+        S = H @ self.P @ H.T + np.eye(3) * self.r
+        K = self.P @ H.T @ np.linalg.inv(S)
+        self.tilt = np.clip(self.tilt + K @ residual, -0.5, 0.5)
+        self.P = (np.eye(2) - K @ H) @ self.P
+        return self.tilt
+
+    def params(self) -> np.ndarray:
+        """The model parameter vector with the estimated tilt."""
+        p = self.p.copy()
+        p[_TILT] = self.tilt
+        return p
+
+
+class Reference:
+    """What the NMPC tracks: a chain of planned legs with holds at the stops, or an entry onto an orbit.
+
+    Parameters
+    ----------
+    segments : list of (Plan, dict)
+        Plans in order with a description (``{"stop": point}`` for a stop).
+    orbit : dict, optional
+        After the last segment, the quasi-stable orbit to follow (``qs``,
+        ``centre``, ``phase``, ``Omega``).
+    """
+
+    def __init__(self, segments, orbit=None):
+        self.segments, self.orbit = segments, orbit
+
+    def sample(self, index: int, t_local, h: float, N: int):
+        """Reference states (10, N+1) and accelerations (N,) for segment ``index`` from local time ``t_local``."""
+        times = t_local + h * np.arange(N + 1)
+        plan = self.segments[index][0]
+        Z = plan.state(times)
+        U = np.array([plan.accel(t) for t in times[:-1]])
+        if self.orbit is not None and index == len(self.segments) - 1:
+            after = times > plan.T
+            if np.any(after):
+                o = self.orbit
+                phases = o["phase"] + o["Omega"] * (times[after] - plan.T)
+                Z[:, after] = np.array([np.array(orbit_state(ca.DM(o["qs"]), ca.DM(o["centre"]), ph)).ravel()
+                                        for ph in phases]).T
+        elif np.any(times > plan.T):
+            Z[6:10, times > plan.T] = 0.0  # hold the rest state at the stop
+        return Z, U
+
+
+class NMPC:
+    """Tracking NMPC with minimum-time plans (see module doc); a ``Controller`` for ``simulate``.
+
+    Parameters
+    ----------
+    mission : Circle or Waypoints
+    params : RollbotParams, optional
+        The robot the controller believes in (level floor by default: the slope is estimated).
+    dt : float
+        Control period of the loop, s (the plant's 100 Hz).
+    settings : NMPCSettings, optional
+    """
+
+    def __init__(self, mission, params: RollbotParams | None = None, dt: float = 0.01,
+                 settings: NMPCSettings | None = None):
+        if not isinstance(mission, (Circle, Waypoints)):
+            raise ValueError(f"mission must be a Circle or Waypoints, got {type(mission).__name__}")
+        if any(not w.stop for w in getattr(mission, "points", ())):
+            raise ValueError("the NMPC plans stops; pass-through waypoints are for the PID's waypoint layer")
+        self.mission = mission
+        self.params = params or RollbotParams()
+        self.dt = dt
+        self.settings = s = settings or NMPCSettings()
+        self.every = max(1, int(round(s.h / dt)))
+        if abs(self.every * dt - s.h) > 1e-9:
+            raise ValueError(f"NMPC h = {s.h} s must be a whole number of control periods dt = {dt} s")
+        self.solver = TrackingSolver(self.params, s)
+        self.estimator = TiltEstimator(self.params, dt, s.tilt_process_noise, s.gyro_sigma)
+        self.map = None  # set with the plans (for centre-of-curvature plots)
+        self.reference = None
+        self.plan_time = 0.0
+        self._pid = None
+        self.reset()
+
+    # -- planning ---------------------------------------------------------------------------------
+    def prepare(self, x0) -> Reference:
+        """Plan the whole mission from the full state ``x0`` (11,); called by ``run_problem`` before the run.
+
+        Raises
+        ------
+        SolveFailed
+            If a minimum-time plan cannot be found.
+        """
+        start = time.perf_counter()
+        level = self.params.replace(slope=0.0)
+        settings = self.settings.plan
+        if isinstance(self.mission, Waypoints):
+            segments, z = [], to_reduced(x0)
+            for stop in self.mission.stops:
+                fastest = _rest_to_rest(level, settings).solve(z, stop)
+                T, N = self._grid(fastest.T)
+                plan = _rest_to_rest(level, replace(settings, N=N)).solve(z, stop, guess=fastest, duration=T)
+                plan.extra["fastest"] = fastest.T
+                segments.append((plan, {"stop": stop}))
+                z = plan.z[:, -1].copy()
+                z[6:10] = 0.0
+            self.reference = Reference(segments)
+        else:
+            fastest = _orbit_entry(self.mission.radius, level, settings).solve(x0, self.mission.centre)
+            T, N = self._grid(fastest.T)
+            entry = _orbit_entry(self.mission.radius, level, replace(settings, N=N))
+            plan = entry.solve(x0, self.mission.centre, guess=fastest, duration=T)
+            plan.extra["fastest"] = fastest.T
+            orbit = {"qs": entry.qs_reduced, "centre": self.mission.centre, "phase": plan.extra["phase"],
+                     "Omega": entry.quasi.Omega}
+            self.reference = Reference([(plan, {})], orbit)
+        from rollbot_oc.quasi_stable import RadiusMap
+
+        self.map = RadiusMap(level)
+        self.plan_time = time.perf_counter() - start
+        return self.reference
+
+    def _grid(self, fastest: float) -> tuple[float, int]:
+        """Duration (s) and intervals of a plan on the NMPC's grid, ``plan_slack`` longer than the fastest."""
+        h = self.settings.h
+        N = int(math.ceil(fastest * (1.0 + self.settings.plan_slack) / h - 1e-9))
+        return N * h, N
+
+    # -- the loop ---------------------------------------------------------------------------------
+    def reset(self):
+        """Forget the run (keeps the plans)."""
+        self.k = 0
+        self.segment, self.segment_start = 0, 0.0
+        self.warm = None
+        self.current = None  # (U, index of the interval in use)
+        self.commands: dict[int, float] = {}
+        self.previous = None
+        self.failures = 0
+        self.pid_until = -1.0
+        self._pid_fresh = True
+        self.stops: list[dict] = []
+        self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0, "late": 0,
+                    "failed": 0, "tilt": []}
+        self._done = False
+        self.estimator.reset()
+
+    @property
+    def done(self) -> bool:
+        """True once every stop has been reached (never for a circle)."""
+        return self._done
+
+    def __call__(self, obs: Observation) -> Command:
+        if self.reference is None:
+            self.prepare(obs.state)
+        k, dt, s = self.k, self.dt, self.settings
+        self.k += 1
+        t_now = k * dt
+        z_meas = to_reduced(obs.state)
+        seen = int(round(obs.t / dt))
+        self._estimate(seen, z_meas)
+        z = self._predict_to_now(z_meas, seen, k)
+        if k % self.every == 0:  # stops are checked at the solve instants, so legs start on the grid
+            self._advance_mission(t_now, obs)
+        if self._done:
+            return self._issue(k, 0.0)
+        if t_now < self.pid_until:
+            return self._pid_command(k, obs)
+        if k % self.every == 0 or self.current is None:
+            self._replan(z, t_now, k)
+            if self.current is None:  # the PID took over
+                return self._pid_command(k, obs)
+        U, k_solved = self.current
+        return self._issue(k, float(U[min((k - k_solved) // self.every, len(U) - 1)]))
+
+    def _issue(self, k: int, accel: float) -> Command:
+        self.commands[k] = accel
+        self.commands.pop(k - 50, None)
+        return Command(accel=accel)
+
+    def _estimate(self, seen: int, z_meas):
+        if self.settings.estimate_tilt and self.previous is not None and seen == self.previous[0] + 1:
+            u = self.commands.get(self.previous[0], 0.0)
+            self.estimator.update(self.previous[1], u, z_meas)
+        self.previous = (seen, z_meas)
+
+    def _predict_to_now(self, z, seen: int, k: int):
+        """Delay compensation: carry a measurement taken at step ``seen`` forward to step ``k``."""
+        if seen >= k:
+            return z
+        step = _one_step(1, self.dt)
+        p = self.estimator.params()
+        for j in range(seen, k):
+            z = np.array(step(z, self.commands.get(j, 0.0), p)[0]).ravel()
+        return z
+
+    def _advance_mission(self, t_now: float, obs: Observation):
+        if self.reference is None or isinstance(self.mission, Circle):
+            return
+        plan, info = self.reference.segments[self.segment]
+        local = t_now - self.segment_start
+        at_rest = np.linalg.norm(obs.omega) < self.settings.rest_speed and abs(obs.theta_dot) < 0.05
+        if local >= plan.T and (at_rest or local >= plan.T + self.settings.hold_time):
+            stop = np.asarray(info["stop"], float)
+            self.stops.append({"point": stop.tolist(), "time": t_now,
+                               "error": float(np.linalg.norm(obs.position - stop))})
+            self.segment += 1
+            self.segment_start = t_now
+            self.warm, self.current = None, None
+            if self.segment >= len(self.reference.segments):
+                self._done = True
+
+    def _replan(self, z, t_now: float, k: int):
+        s = self.settings
+        Zr, Ur = self.reference.sample(self.segment, t_now - self.segment_start, s.h, s.N)
+        # q and -q are the same attitude: give the (continuous) reference the measurement's sign
+        if float(Zr[2:6, 0] @ z[2:6]) < 0:
+            Zr[2:6] *= -1.0
+        x, lam, status, ok, seconds = self.solver.solve(z, Zr, Ur, self.estimator.params(), self.warm)
+        late = seconds > (s.h if s.max_solve_time is None else s.max_solve_time)
+        self.log["solve_times"].append(seconds)
+        self.log["statuses"].append(status)
+        self.log["tilt"].append(self.estimator.tilt.tolist())
+        if ok and not late:
+            _, U = self.solver.split(x)
+            self.current = (U, k)
+            self.warm = (self._shift(x), *lam)  # duals unshifted: the structure repeats every interval
+            self.failures = 0
+            return
+        self.log["late" if ok else "failed"] += 1
+        self.failures += 1
+        if self.current is not None and self.failures < s.max_failures:
+            self.log["fallback_shifted"] += 1  # keep following the previous solution (its index moves on)
+            return
+        self.log["fallback_pid"] += 1
+        self.pid_until = t_now + s.pid_time
+        self.warm, self.current, self.failures = None, None, 0
+        self._pid_fresh = True
+
+    def _shift(self, x):
+        N = self.settings.N
+        Z, U = self.solver.split(x)
+        Zs = np.hstack([Z[:, 1:], Z[:, -1:]])
+        Us = np.concatenate([U[1:], U[-1:]])
+        return np.concatenate([Zs.T.ravel(), Us])
+
+    def _pid_command(self, k: int, obs: Observation) -> Command:
+        if self._pid is None:
+            from rollbot_oc.control.pid import QuasiStablePID
+
+            self._pid = QuasiStablePID(self.mission, self.params, dt=self.dt, radius_map=self.map)
+        if self._pid_fresh:  # take over smoothly from the current driving speed
+            self._pid.reset()
+            self._pid.omega_cmd = max(obs.theta_dot, 0.0)
+            self._pid_fresh = False
+        cmd = self._pid(obs)
+        return self._issue(k, cmd.acceleration(obs.theta_dot, self.dt))
+
+    def report(self) -> dict:
+        """Solve-time statistics (s), solver statuses, fallback counts, stops and plans."""
+        times = np.array(self.log["solve_times"]) if self.log["solve_times"] else np.zeros(1)
+        statuses = {}
+        for st in self.log["statuses"]:
+            statuses[st] = statuses.get(st, 0) + 1
+        plans = [seg[0].to_dict() for seg in self.reference.segments] if self.reference else []
+        return {
+            "stops": list(self.stops),
+            "solver": self.settings.solver,
+            "solves": len(self.log["solve_times"]),
+            "solve_time_min": float(times.min()),
+            "solve_time_median": float(np.median(times)),
+            "solve_time_p95": float(np.percentile(times, 95)),
+            "solve_time_max": float(times.max()),
+            "solver_statuses": statuses,
+            "failed_solves": self.log["failed"],
+            "late_solves": self.log["late"],
+            "fallback_shifted": self.log["fallback_shifted"],
+            "fallback_pid": self.log["fallback_pid"],
+            "plan_time": self.plan_time,
+            "plans": plans,
+            "plan_duration": float(sum(seg[0].T for seg in self.reference.segments)) if self.reference else None,
+            "tilt_estimate": self.estimator.tilt.tolist(),
+        }
+
+
+@functools.lru_cache(maxsize=8)
+def _rest_to_rest(params: RollbotParams, settings: OCPSettings) -> RestToRest:
+    return RestToRest(params, settings)
+
+
+@functools.lru_cache(maxsize=8)
+def _orbit_entry(radius: float, params: RollbotParams, settings: OCPSettings) -> OrbitEntry:
+    return OrbitEntry(radius, params, settings)

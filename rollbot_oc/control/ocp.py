@@ -91,6 +91,8 @@ class OCPSettings:
         Bounds on the plan's duration, s.
     max_iter : int
         IPOPT iteration limit.
+    hessian : {"limited-memory", "exact"}
+        IPOPT's Hessian of the Lagrangian (see module doc).
     """
 
     N: int = 60
@@ -104,6 +106,7 @@ class OCPSettings:
     T_min: float = 0.5
     T_max: float = 60.0
     max_iter: int = 400
+    hessian: str = "limited-memory"
 
 
 @functools.lru_cache(maxsize=None)
@@ -257,7 +260,7 @@ class _MinTimeOCP:
         self.bounds = dict(lbx=lbx, ubx=ubx, lbg=np.concatenate(self.lbg), ubg=np.concatenate(self.ubg))
         nlp = {"x": x, "p": ca.vertcat(self.z0, self.pp, *self.extra_params), "f": self.cost, "g": ca.vertcat(*self.g)}
         opts = {"ipopt": {"max_iter": s.max_iter, "print_level": 0, "sb": "yes", "tol": 1e-6, "acceptable_tol": 1e-4,
-                          "hessian_approximation": "limited-memory"}, "print_time": False}
+                          "hessian_approximation": s.hessian}, "print_time": False}
         self.solver = ca.nlpsol(self.name, "ipopt", nlp, opts)
         self.n_extra = n - (iu + N + 1)
 
@@ -349,9 +352,13 @@ class OrbitEntry(_MinTimeOCP):
         self.centre = ca.MX.sym("centre", 2)
         target = orbit_state(ca.DM(self.qs_reduced), self.centre, self.phase)
         zN = self.Z[:, -1]
-        self.g += [zN - target]
-        self.lbg += [np.zeros(NZ)]
-        self.ubg += [np.zeros(NZ)]
+        # attitude: the vector part of the relative rotation vanishes (3 independent conditions; equating
+        # all four quaternion components would be redundant and spoil the constraint Jacobian's rank)
+        conj = ca.vertcat(target[2], -target[3:6])
+        relative = quat_multiply(conj, zN[2:6])[1:4]
+        self.g += [zN[0:2] - target[0:2], relative, zN[6:10] - target[6:10]]
+        self.lbg += [np.zeros(9)]
+        self.ubg += [np.zeros(9)]
         self.extra_vars, self.extra_params = [self.phase], [self.centre]
         self._finish()
 

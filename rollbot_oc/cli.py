@@ -174,6 +174,30 @@ def _cmd_run(args) -> int:
     return 0 if metrics.get("completed") else 1
 
 
+def _cmd_compare(args) -> int:
+    from rollbot_oc.plots import plot_comparison
+    from rollbot_oc.problems import compare, comparison_row, comparison_table, load_problem
+
+    problem = load_problem(args.problem, base=load_params(args.params))
+    if problem.kind == "open_loop":
+        raise ValueError(f"{args.problem}: an open-loop problem has no controller to compare")
+    runs = compare(problem, seed=args.seed, duration=args.duration)
+    table = comparison_table(runs)
+    rows = [comparison_row(run) for run in runs]
+    if args.out:
+        out = Path(args.out)
+        from rollbot_oc.outputs import atomic_write_text
+
+        atomic_write_text(out / f"{problem.name}_comparison.md", f"# {problem.name}: PID against NMPC\n\n{table}\n")
+        write_json(out / f"{problem.name}_comparison.json", {"problem": problem.name, "seed": args.seed,
+                                                             "rows": rows, "metrics": [r.metrics for r in runs]})
+        plot_comparison(runs, path=out / f"{problem.name}_comparison.png")
+        for run in runs:
+            _write_run(run, out)
+    print(to_json(rows) if args.json else table)
+    return 0 if all(r["completed"] for r in rows) else 1
+
+
 def _cmd_demo(args) -> int:
     """The main job (grows with the toolkit): open-loop runs with plots and JSON in ``--out``."""
     args.omega0, args.duration, args.ramp_rate, args.json = [1.0, 3.0, 6.0], None, 0.5, False
@@ -235,6 +259,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR", help="write the trajectory (.npz), metrics (.json) and plots (PNG) here")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON (SI units)")
     p.set_defaults(run=_cmd_run)
+
+    p = sub.add_parser("compare", help="run the PID baseline and the NMPC on one problem and compare them")
+    p.add_argument("problem", metavar="PROBLEM.toml", help="scenario file (schema in the README)")
+    _add_params(p)
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the sensor noise (default 0)")
+    p.add_argument("--duration", type=_finite, metavar="T", help="override the problem's duration, s")
+    p.add_argument("--out", metavar="DIR", help="write the table (Markdown, JSON), an overlay plot and both runs here")
+    p.add_argument("--json", action="store_true", help="print the table rows as JSON instead of Markdown")
+    p.set_defaults(run=_cmd_compare)
 
     p = sub.add_parser("demo", help="the main job: compute, simulate and write a report folder")
     _add_params(p)

@@ -21,7 +21,7 @@ from rollbot_oc.outputs import atomic_write_bytes  # noqa: E402
 
 __all__ = [
     "ROBOT", "CENTRE", "SPEED", "TARGET", "THEORY", "MEASURED", "save_figure", "plot_top_view", "plot_time_series",
-    "plot_quasi_stable", "plot_eigenvalues",
+    "plot_quasi_stable", "plot_eigenvalues", "plot_comparison",
 ]
 
 ROBOT = "tab:orange"
@@ -165,5 +165,46 @@ def plot_eigenvalues(results, path=None, title: str | None = None):
     ax2.legend(loc="upper left", fontsize=8)
     ax3.legend(loc="upper right", fontsize=8)
     fig.suptitle(title or "Linearised stability of the quasi-stable states")
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def plot_comparison(runs, path=None, title: str | None = None):
+    """Top view of several controllers' runs on one problem, overlaid, with the targets.
+
+    Parameters
+    ----------
+    runs : list of RunResult
+        Runs of the same problem (for example ``problems.compare``).
+    path : str or Path, optional
+        Where to write the PNG.
+    """
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw=dict(width_ratios=[1, 1.2]))
+    colours = {"pid": ROBOT, "nmpc": "tab:brown"}
+    problem = runs[0].problem
+    for run in runs:
+        s = run.result.position
+        colour = colours.get(run.controller, None)
+        ax.plot(s[0], s[1], color=colour, lw=1.1, label=f"{run.controller}")
+        ax2.plot(run.result.t, run.result.driving_speed, color=colour, lw=1.0, label=run.controller)
+    mission = problem.mission
+    if problem.kind == "waypoints":
+        tx, ty = np.asarray(mission.stops).T
+        ax.plot(tx, ty, "x", color=TARGET, ms=10, mew=2, label="stops")
+    elif problem.kind == "circle":
+        a = np.linspace(0.0, 2 * np.pi, 200)
+        ax.plot(mission.centre[0] + mission.radius * np.cos(a), mission.centre[1] + mission.radius * np.sin(a),
+                color=TARGET, ls="--", lw=1.0, label="target circle")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax2.set_xlabel("time (s)")
+    ax2.set_ylabel("driving speed (rad/s)")
+    ax2.set_xscale("symlog", linthresh=10.0)
+    ax2.grid(alpha=0.3)
+    ax2.legend(fontsize=8)
+    fig.suptitle(title or f"{problem.name}: " + " vs ".join(run.controller for run in runs))
     fig.tight_layout()
     return save_figure(fig, path)

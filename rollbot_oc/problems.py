@@ -59,6 +59,7 @@ from rollbot_oc.params import RollbotParams
 from rollbot_oc.simulate import Sensor, SimulationResult, simulate
 
 __all__ = ["Problem", "load_problem", "make_controller", "run_problem", "run_open_loop", "compute_metrics", "RunResult",
+           "compare", "comparison_row", "comparison_table",
            "CONTROLLERS", "REACH_HOLD"]
 
 KINDS = ("circle", "waypoints", "open_loop")
@@ -424,3 +425,61 @@ def run_open_loop(problem: Problem) -> dict:
         runs.append(row)
     return {"problem": problem.name, "runs": runs, "max_R0_error": max(abs(r["R0_error"]) for r in runs),
             "completed": all(r["settled"] for r in runs)}
+
+
+COMPARE_ROWS = (
+    ("completed", "completed", "{}"),
+    ("completion_time", "completion time (s)", "{:.1f}"),
+    ("avg_speed", "average speed (m/s)", "{:.3f}"),
+    ("max_stop_error", "largest stop error (cm)", "{:.1f}"),
+    ("avg_deviation_cm", "average deviation (cm)", "{:.2f}"),
+    ("max_deviation_cm", "largest deviation (cm)", "{:.2f}"),
+    ("max_motor_torque", "largest motor torque (N m)", "{:.3f}"),
+    ("min_normal_force", "least normal force (N)", "{:.2f}"),
+    ("min_slide_margin", "least slide margin (N)", "{:.2f}"),
+    ("solve_median_ms", "solve time median (ms)", "{:.2f}"),
+    ("solve_p95_ms", "solve time p95 (ms)", "{:.2f}"),
+    ("fallbacks", "fallbacks (shifted / PID)", "{}"),
+    ("ocp_bound", "minimum-time bound (s)", "{:.1f}"),
+    ("bound_ratio", "time / minimum-time bound", "{:.2f}"),
+)
+
+
+def comparison_row(run: RunResult) -> dict:
+    """The comparison-table entries of one run (see ``COMPARE_ROWS``)."""
+    m = run.metrics
+    row = {"controller": run.controller, "completed": m["completed"], "completion_time": m["completion_time"],
+           "avg_speed": m["avg_speed"],
+           "max_stop_error": 100 * max(m["stop_errors"]) if m["stop_errors"] else None,
+           "avg_deviation_cm": None if m["avg_deviation"] is None else 100 * m["avg_deviation"],
+           "max_deviation_cm": None if m["max_deviation"] is None else 100 * m["max_deviation"],
+           "max_motor_torque": m["max_motor_torque"], "min_normal_force": m["min_normal_force"],
+           "min_slide_margin": m["min_slide_margin"]}
+    if "solve_time_median" in m:  # an optimising controller: its solves, fallbacks and plans
+        row.update(solve_median_ms=1e3 * m["solve_time_median"], solve_p95_ms=1e3 * m["solve_time_p95"],
+                   fallbacks=f"{m['fallback_shifted']} / {m['fallback_pid']}")
+        fastest = [plan.get("fastest") for plan in m.get("plans", [])]
+        if fastest and all(f is not None for f in fastest):
+            row["ocp_bound"] = float(sum(fastest))
+            if m["completion_time"]:
+                row["bound_ratio"] = m["completion_time"] / row["ocp_bound"]
+    else:
+        row.update(solve_median_ms=1e3 * m["step_time_median"], solve_p95_ms=1e3 * m["step_time_p95"])
+    return row
+
+
+def compare(problem: Problem, seed: int = 0, params: RollbotParams | None = None,
+            duration: float | None = None) -> list[RunResult]:
+    """Run the PID baseline and the NMPC on the same problem, plant, noise and seed."""
+    return [run_problem(problem, name, seed=seed, params=params, duration=duration) for name in ("pid", "nmpc")]
+
+
+def comparison_table(runs: list[RunResult]) -> str:
+    """A Markdown table of ``comparison_row`` for each run, with the PID/NMPC ratio of the main figure."""
+    rows = [comparison_row(run) for run in runs]
+    lines = ["| | " + " | ".join(r["controller"] for r in rows) + " |", "|---|" + "---|" * len(rows)]
+    for key, label, fmt in COMPARE_ROWS:
+        cells = [fmt.format(r[key]) if r.get(key) is not None else "-" for r in rows]
+        if any(c != "-" for c in cells):
+            lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)

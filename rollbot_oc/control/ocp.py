@@ -102,7 +102,7 @@ class OCPSettings:
     normal_margin: float = 0.3
     friction_margin: float = 0.8
     goal_tolerance: float = 0.005
-    effort_weight: float = 1e-3
+    effort_weight: float = 1e-4
     T_min: float = 0.5
     T_max: float = 60.0
     max_iter: int = 400

@@ -1,0 +1,104 @@
+"""Offline trajectory optimisation: constraints hold, plans are feasible in the plant, guesses are physical."""
+
+import math
+
+import numpy as np
+import pytest
+
+from rollbot_oc.control.ocp import (
+    OCPSettings, OrbitEntry, RestToRest, SolveFailed, orbit_state, plan_waypoints, quasi_stable_guess,
+)
+from rollbot_oc.dynamics import RollbotModel, from_reduced, reduced_model, rest_state, to_reduced
+from rollbot_oc.params import RollbotParams
+from rollbot_oc.simulate import simulate
+
+PARAMS = RollbotParams()
+
+
+@pytest.fixture(scope="module")
+def leg():
+    ocp = RestToRest(PARAMS)
+    start = rest_state(PARAMS, position=(0.0, 0.0))
+    return ocp, start, ocp.solve(start, [0.0, 1.2])
+
+
+def test_minimum_time_leg_ends_at_rest_on_the_goal(leg):
+    ocp, start, plan = leg
+    s = ocp.settings
+    assert plan.success and plan.status in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+    assert 2.0 < plan.T < 10.0  # the PID needs about 45 s per leg
+    end = plan.z[:, -1]
+    assert np.abs(end[0:2] - [0.0, 1.2]).max() <= s.goal_tolerance + 1e-6
+    assert np.abs(end[6:10]).max() < 1e-6  # shell and motor still
+    # pendulum straight down: a rest state of the full model
+    assert np.abs(RollbotModel(PARAMS).xdot(from_reduced(end))).max() < 1e-5
+
+
+def test_constraints_hold_at_every_node(leg):
+    ocp, _, plan = leg
+    s, red, p = ocp.settings, reduced_model(), PARAMS.vector()
+    z, u = plan.z[:, :-1], plan.u
+    torque = np.array(red.motor_torque(z, u[None, :], p, np.zeros(6))).ravel()
+    margins = np.array(red.margins(z, u[None, :], p, np.zeros(6)))
+    assert np.abs(torque).max() <= s.torque_margin * PARAMS.max_torque * (1 + 1e-6)
+    assert np.abs(plan.driving_speed).max() <= s.speed_margin * PARAMS.max_speed * (1 + 1e-6)  # IPOPT tolerance
+    assert np.abs(u).max() <= PARAMS.max_accel * (1 + 1e-6)
+    assert margins[0].min() >= s.normal_margin * PARAMS.total_mass * PARAMS.g * (1 - 1e-6)
+    reaction = np.array(red.reaction(z, u[None, :], p, np.zeros(6)))
+    assert np.all(np.hypot(reaction[0], reaction[1]) <= s.friction_margin * PARAMS.mu * reaction[2] * (1 + 1e-6))
+
+
+def test_the_plan_is_locally_time_optimal(leg):
+    """Asked to do the same in 80 % of the time, from the optimum as the guess, the solver must fail."""
+    ocp, start, plan = leg
+    with pytest.raises(SolveFailed):
+        RestToRest(PARAMS, OCPSettings(max_iter=150)).solve(start, [0.0, 1.2], guess=plan, duration=0.8 * plan.T)
+
+
+def test_plan_flies_in_the_plant(leg):
+    """The planned accelerations, replayed open loop in the full plant (100 Hz, RK4), end near the goal."""
+    _, start, plan = leg
+    fine = plan.resample(int(round(plan.T / 0.01)))  # same profile sampled per plant period
+    run = simulate(start, fine.T, accel=fine.u[: int(round(fine.T / 0.01))])
+    assert run.completed
+    assert np.linalg.norm(run.position[:, -1] - [0.0, 1.2]) < 0.05
+    assert np.abs(run.motor_torque).max() <= PARAMS.max_torque
+
+
+def test_initial_guess_comes_from_the_quasi_stable_theory():
+    guess = quasi_stable_guess(to_reduced(rest_state(PARAMS)), np.array([0.0, 1.2]), PARAMS, 60)
+    assert np.abs(guess.z[9]).max() > 1.0  # the motor turns: not a guess of zeros
+    assert guess.extra["miss"] < 0.5  # its simulated end lands near the goal
+
+
+def test_waypoint_chain_and_fixed_time_variant():
+    ocp = RestToRest(PARAMS)
+    start = rest_state(PARAMS, position=(-0.3, -0.3))
+    plans = plan_waypoints(start, [[0.0, 0.0], [0.6, 0.3]], ocp=ocp)
+    assert len(plans) == 2 and np.allclose(plans[1].z[0:2, 0], plans[0].z[0:2, -1])
+    slower = ocp.solve(start, [0.0, 0.0], duration=plans[0].T * 1.3)
+    assert slower.T == pytest.approx(plans[0].T * 1.3)
+    assert np.sum(slower.u**2) < np.sum(plans[0].u**2)  # more time, less effort
+
+
+def test_orbit_entry_reaches_the_quasi_stable_orbit():
+    entry = OrbitEntry(0.65, PARAMS, OCPSettings(N=50))
+    start = rest_state(PARAMS, position=(0.65, 0.0))
+    plan = entry.solve(start, [0.0, 0.0], duration=5.0)
+    target = np.array(orbit_state(entry.qs_reduced, np.zeros(2), plan.extra["phase"])).ravel()
+    end = plan.z[:, -1]
+    assert np.abs(end[[0, 1, 6, 7, 8, 9]] - target[[0, 1, 6, 7, 8, 9]]).max() < 1e-5
+    assert min(np.abs(end[2:6] - target[2:6]).max(), np.abs(end[2:6] + target[2:6]).max()) < 1e-5
+    assert np.hypot(*end[0:2]) == pytest.approx(entry.quasi.R0, abs=1e-6)
+
+
+def test_an_impossible_plan_is_reported_with_its_status():
+    ocp = RestToRest(PARAMS, OCPSettings(N=20, T_max=1.0, max_iter=30))
+    with pytest.raises(SolveFailed) as info:
+        ocp.solve(rest_state(PARAMS), [3.0, 0.0])  # 3 m in at most 1 s
+    assert info.value.status != "Solve_Succeeded" and info.value.plan is not None
+
+
+def test_bad_start_state():
+    with pytest.raises(ValueError, match="expected 11"):
+        RestToRest(PARAMS, OCPSettings(N=10)).solve(np.zeros(4), [1.0, 0.0])

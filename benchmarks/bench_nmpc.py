@@ -1,0 +1,57 @@
+"""NMPC solve times: IPOPT against real-time iterations (interpreted and compiled), and the OCP's Hessians.
+
+Closed-loop runs on the full plant (1 deg slope, noise, latency); each prints
+the median, 95th percentile and largest solve time over all solves of the run.
+IPOPT runs without the real-time limit (``max_solve_time``) so that its solves
+are used and measured rather than replaced by fallbacks.
+Run: .venv/bin/python benchmarks/bench_nmpc.py [--quick]
+"""
+
+import statistics
+import sys
+import time
+
+from rollbot_oc.codegen import compiler
+from rollbot_oc.control.nmpc import NMPCSettings
+from rollbot_oc.control.ocp import OCPSettings, RestToRest
+from rollbot_oc.dynamics import rest_state
+from rollbot_oc.params import RollbotParams
+from rollbot_oc.problems import load_problem, run_problem
+
+
+def closed_loop(label, problem, settings, duration=None):
+    m = run_problem(problem, "nmpc", settings=settings, duration=duration).metrics
+    print(f"  {label:34s} solves {m['solves']:5d}  median {1e3 * m['solve_time_median']:7.2f} ms  "
+          f"p95 {1e3 * m['solve_time_p95']:7.2f} ms  max {1e3 * m['solve_time_max']:7.2f} ms  "
+          f"failed {m['failed_solves']}  late {m['late_solves']}  fallbacks {m['fallback_shifted']}/{m['fallback_pid']}"
+          f"  completion {m['completion_time']}")
+    return m
+
+
+def main():
+    quick = "--quick" in sys.argv
+    n_shape = load_problem("problems/n_shape.toml")
+    circle = load_problem("problems/circle_R050.toml")
+    print("NMPC solve times, N = 30 intervals of 0.1 s, 10 states, RK4 x2 (2-core machine)")
+    closed_loop("RTI, compiled C (default)" if compiler() else "RTI (no C compiler)", n_shape, NMPCSettings())
+    closed_loop("RTI, CasADi virtual machine", n_shape, NMPCSettings(compiled=False))
+    closed_loop("RTI on a circle (compiled)", circle, NMPCSettings(), duration=60.0 if quick else 300.0)
+    closed_loop("IPOPT, exact Hessian, converged", circle, NMPCSettings(solver="ipopt", max_solve_time=60.0),
+                duration=5.0 if quick else 20.0)
+
+    print("\nMinimum-time rest-to-rest OCP, 1.2 m leg, N = 60 (median of 3)")
+    params = RollbotParams()
+    start = rest_state(params)
+    for hessian in ("limited-memory", "exact"):
+        ocp = RestToRest(params, OCPSettings(hessian=hessian))
+        times, iters = [], []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            plan = ocp.solve(start, [0.0, 1.2])
+            times.append(time.perf_counter() - t0)
+            iters.append(plan.iterations)
+        print(f"  IPOPT {hessian:15s} median {statistics.median(times):6.2f} s  iterations {iters[0]}  T = {plan.T:.2f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -199,13 +199,28 @@ def _cmd_compare(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    """The main job (grows with the toolkit): open-loop runs with plots and JSON in ``--out``."""
-    args.omega0, args.duration, args.ramp_rate, args.json = [1.0, 3.0, 6.0], None, 0.5, False
-    args.slope_deg = None
-    args.out = args.out or "out"
-    status = _cmd_openloop(args)
-    print(f"wrote {args.out}/openloop.json and top-view plots")
-    return status
+    from rollbot_oc.report import make_report
+
+    make_report(args.out, load_params(args.params), quick=args.quick)
+    return 0
+
+
+def _cmd_plot(args) -> int:
+    from rollbot_oc.animate import animate_run
+    from rollbot_oc.plots import plot_energy_and_contact, plot_time_series, plot_top_view
+    from rollbot_oc.simulate import SimulationResult
+
+    run = SimulationResult.load(args.run)
+    out = Path(args.out)
+    stem = Path(args.run).stem
+    written = [plot_top_view(run, title=stem, path=out / f"{stem}_top.png") and out / f"{stem}_top.png",
+               plot_time_series(run, title=stem, path=out / f"{stem}_time.png") and out / f"{stem}_time.png",
+               plot_energy_and_contact(run, title=stem, path=out / f"{stem}_energy.png") and out / f"{stem}_energy.png"]
+    if args.animate:
+        written.append(animate_run(run, out / f"{stem}.gif", title=stem))
+    for path in written:
+        print(path)
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -269,10 +284,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the table rows as JSON instead of Markdown")
     p.set_defaults(run=_cmd_compare)
 
-    p = sub.add_parser("demo", help="the main job: compute, simulate and write a report folder")
+    p = sub.add_parser("demo", help="the main job: quasi-stable figures, PID against NMPC on the N-shape, "
+                       "an animation; writes a report folder")
     _add_params(p)
     p.add_argument("--out", metavar="DIR", default="out", help="report folder (default out/)")
+    p.add_argument("--quick", action="store_true", help="fewer points and frames (about a minute less)")
     p.set_defaults(run=_cmd_demo)
+
+    p = sub.add_parser("plot", help="figures (and an animation) of a saved run (.npz from run/compare --out)")
+    p.add_argument("run", metavar="RUN.npz", help="a saved run")
+    p.add_argument("--out", metavar="DIR", default=".", help="where to write the PNG files (default: here)")
+    p.add_argument("--animate", action="store_true", help="also write an animated GIF")
+    p.set_defaults(run=_cmd_plot)
     return parser
 
 

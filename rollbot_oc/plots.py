@@ -21,7 +21,7 @@ from rollbot_oc.outputs import atomic_write_bytes  # noqa: E402
 
 __all__ = [
     "ROBOT", "CENTRE", "SPEED", "TARGET", "THEORY", "MEASURED", "save_figure", "plot_top_view", "plot_time_series",
-    "plot_quasi_stable", "plot_eigenvalues", "plot_comparison",
+    "plot_quasi_stable", "plot_eigenvalues", "plot_comparison", "plot_energy_and_contact",
 ]
 
 ROBOT = "tab:orange"
@@ -206,5 +206,39 @@ def plot_comparison(runs, path=None, title: str | None = None):
     ax2.grid(alpha=0.3)
     ax2.legend(fontsize=8)
     fig.suptitle(title or f"{problem.name}: " + " vs ".join(run.controller for run in runs))
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def plot_energy_and_contact(result, path=None, title: str | None = None):
+    """Energy, motor and damping power, ground reaction and contact margins along a run.
+
+    The energy panel also draws ``E(0) +`` the integrated motor and damping power: the two
+    curves lie on each other when the simulation conserves energy as it should.
+    """
+    from rollbot_oc.dynamics import RollbotModel
+
+    model = RollbotModel(result.params)
+    t = result.t
+    energy = model.energy(result.x)
+    power = model.power(result.x[:, :-1], result.applied_accel)
+    work = np.concatenate([[0.0], np.cumsum(power[:2].sum(axis=0) * result.dt)])
+    fig, axes = plt.subplots(3, 1, figsize=(7, 7.5), sharex=True)
+    axes[0].plot(t, energy, color=ROBOT, label="mechanical energy E")
+    axes[0].plot(t, energy[0] + work, color="k", ls=":", label="E(0) + work of motor and damping")
+    axes[0].set_ylabel("energy (J)")
+    axes[1].plot(t[:-1], power[0], color=SPEED, label="motor power")
+    axes[1].plot(t[:-1], power[1], color=CENTRE, label="damping power")
+    axes[1].set_ylabel("power (W)")
+    axes[2].plot(t[:-1], result.normal_force, color="k", label="normal force (no-jump margin)")
+    axes[2].plot(t[:-1], result.slide_margin, color=TARGET, label="no-slide margin mu N_z - |N_t|")
+    axes[2].axhline(0.0, color="0.5", lw=0.8)
+    axes[2].set_ylabel("force (N)")
+    axes[2].set_xlabel("time (s)")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="best")
+    if title:
+        axes[0].set_title(title)
     fig.tight_layout()
     return save_figure(fig, path)

@@ -28,6 +28,7 @@ stops there rather than returning a wrong trajectory.
 from __future__ import annotations
 
 import functools
+import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -401,7 +402,31 @@ class SimulationResult:
             dt=self.dt, params=self.params.vector(), state_names=np.array(STATE_NAMES),
             diag_names=np.array(DIAG_NAMES), event_kinds=np.array([e.kind for e in self.events], dtype=str),
             event_times=np.array([e.time for e in self.events]),
+            event_margins=np.array([e.margin for e in self.events]),
+            params_file=np.array(json.dumps(self.params.to_file_dict())),
         )
+
+    @classmethod
+    def load(cls, path: str | Path) -> "SimulationResult":
+        """Read a run written by ``save``.
+
+        Raises
+        ------
+        ValueError
+            If the file is missing or is not a saved run.
+        """
+        try:
+            data = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{path}: cannot read a saved run ({exc})") from None
+        missing = {"t", "x", "command", "speed_command", "diag", "dt", "params_file"} - set(data.files)
+        if missing:
+            raise ValueError(f"{path}: not a saved run (missing {', '.join(sorted(missing))})")
+        params = RollbotParams.from_file_dict(json.loads(str(data["params_file"])), source=str(path))
+        events = [Event(str(k), float(t), float(m)) for k, t, m in
+                  zip(data["event_kinds"], data["event_times"], data.get("event_margins", np.zeros(0)))]
+        return cls(params, float(data["dt"]), data["t"], data["x"], data["command"], data["speed_command"],
+                   data["diag"], events, data["step_times"])
 
 
 def _schedule(value, times: np.ndarray, name: str) -> np.ndarray:

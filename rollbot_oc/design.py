@@ -1,0 +1,89 @@
+"""The paper's hardware-design trade-off: range of revolving radius against recovery time.
+
+Paper, section "Hardware Design": a larger ``r0``, ``m``, ``phi`` and ``k0``
+make Rollbot recover faster from transients, while a smaller ``phi`` and
+``m`` let the revolving radius change more with the driving speed; the
+prototype balances the two.  ``design_point`` measures both for one
+parameter set from the quasi-stable states and their linearised stability
+over ``[0, max_speed]``; ``sweep`` varies one parameter.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from rollbot_oc.params import RollbotParams
+from rollbot_oc.progress import progress
+from rollbot_oc.quasi_stable import quasi_stable_curve
+from rollbot_oc.stability import stability_curve
+
+__all__ = ["DesignPoint", "design_point", "sweep", "SWEEPABLE"]
+
+SWEEPABLE = ("phi", "m", "r0", "k0", "R", "I", "M_s")
+
+
+@dataclass(frozen=True)
+class DesignPoint:
+    """Steering range and recovery of one design (SI units).
+
+    Attributes
+    ----------
+    params : RollbotParams
+    R0_min, R0_max : float
+        Revolving radius at rest and at ``max_speed`` on the slow branch, m
+        (``R0_max`` is NaN if the branch ends before ``max_speed``).
+    reach : float
+        Highest driving speed the slow branch reaches, rad/s.
+    tau_max : float
+        Worst (longest) recovery time over the driving speeds, s (inf if unstable).
+    stable : bool
+        Every quasi-stable state up to ``reach`` is stable.
+    """
+
+    params: RollbotParams
+    R0_min: float
+    R0_max: float
+    reach: float
+    tau_max: float
+    stable: bool
+
+    @property
+    def radius_range(self) -> float:
+        """``R0_max - R0_min``, m: how far the driving speed can move the revolving radius."""
+        return self.R0_max - self.R0_min
+
+
+def design_point(params: RollbotParams, speeds: int = 30) -> DesignPoint:
+    """Steering range and worst recovery time of ``params`` over ``speeds`` driving speeds in ``[0, max_speed]``."""
+    omegas = np.linspace(0.0, params.max_speed, speeds)
+    states = quasi_stable_curve(omegas, params)
+    good = [s for s in states[1:] if s.converged]
+    reach = max((s.omega0 for s in good), default=0.0)
+    contiguous = [s.omega0 for s in states[1:] if s.converged and s.omega0 <= reach]
+    results = stability_curve(contiguous, params) if contiguous else []
+    taus = [r.tau for r in results]
+    R0_max = states[-1].R0 if states[-1].converged else math.nan
+    return DesignPoint(params, states[0].R0, R0_max, reach, max(taus, default=math.inf),
+                       bool(results) and all(r.stable for r in results))
+
+
+def sweep(base: RollbotParams, field: str, values, speeds: int = 30, show_progress: bool = True) -> list[DesignPoint]:
+    """``design_point`` for ``base`` with ``field`` (SI units, radians) set to each of ``values``.
+
+    Raises
+    ------
+    ValueError
+        If ``field`` is not one of ``SWEEPABLE`` or a value is invalid (the parameter check names it).
+    """
+    if field not in SWEEPABLE:
+        raise ValueError(f"sweep: field = {field!r}; valid are {', '.join(SWEEPABLE)}")
+    points = []
+    for value in progress(values, f"sweeping {field}", enabled=show_progress):
+        changes = {field: float(value)}
+        if field in ("M_s", "R") and base.k0 == RollbotParams(M_s=base.M_s, R=base.R).k0:
+            changes["k0"] = None  # keep the paper's k0 = 0.4 1/s M R^2 rule
+        points.append(design_point(base.replace(**changes), speeds))
+    return points

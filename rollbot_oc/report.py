@@ -1,0 +1,156 @@
+"""The main job: a report folder with the paper's figures, the PID-against-NMPC comparison and an animation.
+
+``make_report`` is what ``rollbot-oc demo`` (and ``make demo``) runs.  Steps:
+
+1. quasi-stable states (both branches) and their stability over the driving
+   speeds: ``quasi_stable.png``, ``eigenvalues.png``;
+2. the open-loop experiment against the theory: ``openloop.json``;
+3. the PID baseline and the NMPC on the N-shape problem: ``comparison.md``,
+   ``comparison.json``, ``comparison.png`` and each run's plots and ``.npz``;
+4. an animation of the NMPC run: ``n_shape_nmpc.gif``;
+5. ``report.md`` (an index with the key numbers) and ``report.json``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rollbot_oc.outputs import atomic_write_text, write_json
+from rollbot_oc.params import RollbotParams
+
+__all__ = ["make_report", "problem_path"]
+
+
+def problem_path(name: str) -> Path:
+    """The bundled scenario file ``problems/<name>.toml`` (source checkout or editable install).
+
+    Raises
+    ------
+    ValueError
+        If the ``problems/`` folder cannot be found.
+    """
+    for folder in (Path(__file__).resolve().parents[1] / "problems", Path.cwd() / "problems"):
+        if (folder / f"{name}.toml").exists():
+            return folder / f"{name}.toml"
+    raise ValueError(f"cannot find problems/{name}.toml: run from the rollbot_oc source folder")
+
+
+def _log(message: str, enabled: bool):
+    if enabled:
+        print(message, flush=True)
+
+
+def make_report(out: str | Path = "out", params: RollbotParams | None = None, quick: bool = False,
+                verbose: bool = True) -> dict:
+    """Compute, simulate and write the report folder (see module doc).
+
+    Parameters
+    ----------
+    out : str or Path
+        Report folder (created).
+    params : RollbotParams, optional
+        The robot; the paper's prototype by default.
+    quick : bool
+        Fewer curve points, fewer open-loop speeds and a shorter animation (for tests).
+    verbose : bool
+        Print each step and its duration.
+
+    Returns
+    -------
+    dict
+        The key numbers (also in ``report.json``).
+    """
+    from rollbot_oc.animate import animate_run
+    from rollbot_oc.experiments import open_loop_run
+    from rollbot_oc.plots import (
+        plot_comparison, plot_eigenvalues, plot_energy_and_contact, plot_quasi_stable, plot_time_series, plot_top_view,
+    )
+    from rollbot_oc.problems import compare, comparison_row, comparison_table, load_problem
+    from rollbot_oc.quasi_stable import quasi_stable_curve
+    from rollbot_oc.stability import stability_curve
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    params = params or RollbotParams()
+    summary: dict = {"quick": quick}
+    steps = 5
+    start = time.perf_counter()
+
+    _log(f"[1/{steps}] quasi-stable states and their stability", verbose)
+    omegas = np.linspace(0.0, params.max_speed, 60 if quick else 200)
+    curves = {branch: quasi_stable_curve(omegas, params, branch) for branch in ("slow", "fast")}
+    plot_quasi_stable(curves, path=out / "quasi_stable.png")
+    stability = stability_curve(omegas[1:], params)
+    plot_eigenvalues(stability, path=out / "eigenvalues.png")
+    slow = curves["slow"]
+    summary["quasi_stable"] = {"R0_at_rest": slow[0].R0, "R0_at_max_speed": slow[-1].R0,
+                               "Re_lambda2_range": [min(r.lambda2.real for r in stability),
+                                                    max(r.lambda2.real for r in stability)],
+                               "tau_range": [min(r.tau for r in stability), max(r.tau for r in stability)]}
+
+    _log(f"[2/{steps}] open-loop experiment against the theory", verbose)
+    rows = []
+    for speed, theory in zip((1.0, 3.0, 6.0), quasi_stable_curve([1.0, 3.0, 6.0], params)):
+        measured, _ = open_loop_run(speed, params)
+        rows.append({**measured.to_dict(), "R0_theory": theory.R0, "R0_error": measured.R0 / theory.R0 - 1})
+    write_json(out / "openloop.json", {"runs": rows})
+    summary["open_loop_max_R0_error"] = max(abs(r["R0_error"]) for r in rows)
+
+    _log(f"[3/{steps}] PID baseline and NMPC on the N-shape (full plant, 1 deg slope)", verbose)
+    problem = load_problem(problem_path("n_shape"), base=params)
+    runs = compare(problem)
+    table = comparison_table(runs)
+    atomic_write_text(out / "comparison.md", f"# N-shape: PID baseline against NMPC\n\n{table}\n")
+    write_json(out / "comparison.json", {"rows": [comparison_row(r) for r in runs],
+                                         "metrics": [r.metrics for r in runs]})
+    plot_comparison(runs, path=out / "comparison.png")
+    for run in runs:
+        stem = f"n_shape_{run.controller}"
+        run.result.save(out / f"{stem}.npz")
+        plot_top_view(run.result, centres=run.centres, targets=problem.mission.stops,
+                      title=f"N-shape, {run.controller}", path=out / f"{stem}_top.png")
+        plot_time_series(run.result, centres=run.centres, title=f"N-shape, {run.controller}",
+                         path=out / f"{stem}_time.png")
+        plot_energy_and_contact(run.result, title=f"N-shape, {run.controller}", path=out / f"{stem}_energy.png")
+    pid, nmpc = (r.metrics for r in runs)
+    summary["n_shape"] = {"pid_time": pid["completion_time"], "nmpc_time": nmpc["completion_time"],
+                          "speed_up": pid["completion_time"] / nmpc["completion_time"]
+                          if pid["completion_time"] and nmpc["completion_time"] else None,
+                          "pid_stop_errors": pid["stop_errors"], "nmpc_stop_errors": nmpc["stop_errors"],
+                          "nmpc_solve_time_median": nmpc["solve_time_median"],
+                          "nmpc_solve_time_p95": nmpc["solve_time_p95"]}
+
+    _log(f"[4/{steps}] animation of the NMPC run", verbose)
+    nmpc_run = runs[1]
+    animate_run(nmpc_run.result, out / "n_shape_nmpc.gif", centres=nmpc_run.centres, targets=problem.mission.stops,
+                title="N-shape, NMPC", frames=40 if quick else 120)
+
+    _log(f"[5/{steps}] report", verbose)
+    q = summary["quasi_stable"]
+    n = summary["n_shape"]
+    lines = [
+        "# Rollbot report",
+        "",
+        f"Quasi-stable slow branch: R0 from {q['R0_at_rest']:.3f} m at rest to {q['R0_at_max_speed']:.3f} m at "
+        f"{params.max_speed:.2f} rad/s; Re(lambda2) in [{q['Re_lambda2_range'][0]:.3f}, {q['Re_lambda2_range'][1]:.3f}]"
+        f" 1/s, recovery time {q['tau_range'][0]:.1f} to {q['tau_range'][1]:.1f} s.",
+        "",
+        f"Open loop: simulated R0 within {100 * summary['open_loop_max_R0_error']:.3f} % of the theory "
+        "at 1, 3 and 6 rad/s.",
+        "",
+        f"N-shape: the PID baseline needs {n['pid_time']:.1f} s, the NMPC {n['nmpc_time']:.1f} s"
+        + (f" ({n['speed_up']:.1f} times faster)" if n["speed_up"] else "") + ".",
+        "",
+        table,
+        "",
+        "Figures: quasi_stable.png, eigenvalues.png, comparison.png, n_shape_*_top.png, n_shape_*_time.png, "
+        "n_shape_*_energy.png; animation: n_shape_nmpc.gif; data: openloop.json, comparison.json, *.npz.",
+    ]
+    atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
+    summary["wall_time"] = time.perf_counter() - start
+    write_json(out / "report.json", summary)
+    _log(f"done in {summary['wall_time']:.0f} s: {out}/report.md", verbose)
+    return summary

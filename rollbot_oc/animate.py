@@ -11,16 +11,13 @@ import os
 import tempfile
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib import animation
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib import animation  # noqa: E402
-
-from rollbot_oc.dynamics import QUAT, THETA  # noqa: E402
-from rollbot_oc.plots import CENTRE, ROBOT, SPEED, TARGET  # noqa: E402
-from rollbot_oc.rotations import quat_to_matrix_np  # noqa: E402
+from rollbot_oc.dynamics import QUAT, THETA
+from rollbot_oc.plots import CENTRE, ROBOT, SPEED, TARGET
+from rollbot_oc.rotations import quat_to_matrix_np
 
 __all__ = ["animate_run", "shell_geometry"]
 

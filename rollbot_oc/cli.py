@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -301,6 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """Run ``rollbot-oc`` with ``argv``; returns the exit status."""
+    os.environ.setdefault("MPLBACKEND", "Agg")  # the command line only writes figures to files
     try:
         args = build_parser().parse_args(argv)
         return args.run(args)

@@ -11,13 +11,10 @@ from __future__ import annotations
 import io
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
 
-matplotlib.use("Agg")  # figures are written to files; no display needed
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from rollbot_oc.outputs import atomic_write_bytes  # noqa: E402
+from rollbot_oc.outputs import atomic_write_bytes
 
 __all__ = [
     "ROBOT", "CENTRE", "SPEED", "TARGET", "THEORY", "MEASURED", "save_figure", "plot_top_view", "plot_time_series",
@@ -222,7 +219,8 @@ def plot_energy_and_contact(result, path=None, title: str | None = None):
     t = result.t
     energy = model.energy(result.x)
     power = model.power(result.x[:, :-1], result.applied_accel)
-    work = np.concatenate([[0.0], np.cumsum(power[:2].sum(axis=0) * result.dt)])
+    power_end = model.power(result.x[:, 1:], result.applied_accel)  # acceleration held over each period
+    work = np.concatenate([[0.0], np.cumsum(0.5 * (power[:2] + power_end[:2]).sum(axis=0) * result.dt)])
     fig, axes = plt.subplots(3, 1, figsize=(7, 7.5), sharex=True)
     axes[0].plot(t, energy, color=ROBOT, label="mechanical energy E")
     axes[0].plot(t, energy[0] + work, color="k", ls=":", label="E(0) + work of motor and damping")

@@ -16,6 +16,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
 
 from rollbot_oc.outputs import atomic_write_text, write_json
@@ -91,6 +92,8 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
                                                     max(r.lambda2.real for r in stability)],
                                "tau_range": [min(r.tau for r in stability), max(r.tau for r in stability)]}
 
+    plt.close("all")
+
     _log(f"[2/{steps}] open-loop experiment against the theory", verbose)
     rows = []
     for speed, theory in zip((1.0, 3.0, 6.0), quasi_stable_curve([1.0, 3.0, 6.0], params)):
@@ -122,6 +125,8 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
                           "pid_stop_errors": pid["stop_errors"], "nmpc_stop_errors": nmpc["stop_errors"],
                           "nmpc_solve_time_median": nmpc["solve_time_median"],
                           "nmpc_solve_time_p95": nmpc["solve_time_p95"]}
+
+    plt.close("all")
 
     _log(f"[4/{steps}] animation of the NMPC run", verbose)
     nmpc_run = runs[1]

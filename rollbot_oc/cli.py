@@ -16,6 +16,7 @@ import os
 import sys
 from pathlib import Path
 
+from rollbot_oc.control.ocp import SolveFailed
 from rollbot_oc.outputs import to_json, write_json
 from rollbot_oc.params import load_params
 
@@ -211,9 +212,9 @@ def _cmd_plot(args) -> int:
     from rollbot_oc.plots import plot_energy_and_contact, plot_time_series, plot_top_view
     from rollbot_oc.simulate import SimulationResult
 
-    run = SimulationResult.load(args.run)
+    run = SimulationResult.load(args.run_file)
     out = Path(args.out)
-    stem = Path(args.run).stem
+    stem = Path(args.run_file).stem
     written = [plot_top_view(run, title=stem, path=out / f"{stem}_top.png") and out / f"{stem}_top.png",
                plot_time_series(run, title=stem, path=out / f"{stem}_time.png") and out / f"{stem}_time.png",
                plot_energy_and_contact(run, title=stem, path=out / f"{stem}_energy.png") and out / f"{stem}_energy.png"]
@@ -293,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_cmd_demo)
 
     p = sub.add_parser("plot", help="figures (and an animation) of a saved run (.npz from run/compare --out)")
-    p.add_argument("run", metavar="RUN.npz", help="a saved run")
+    p.add_argument("run_file", metavar="RUN.npz", help="a saved run")
     p.add_argument("--out", metavar="DIR", default=".", help="where to write the PNG files (default: here)")
     p.add_argument("--animate", action="store_true", help="also write an animated GIF")
     p.set_defaults(run=_cmd_plot)
@@ -312,6 +313,9 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f"rollbot-oc: error: {exc}", file=sys.stderr)
         return 2
+    except SolveFailed as exc:  # a computation that did not converge: reported, not a crash
+        print(f"rollbot-oc: failed: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("rollbot-oc: interrupted", file=sys.stderr)
         return 130

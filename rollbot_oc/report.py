@@ -143,8 +143,8 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
         f"{params.max_speed:.2f} rad/s; Re(lambda2) in [{q['Re_lambda2_range'][0]:.3f}, {q['Re_lambda2_range'][1]:.3f}]"
         f" 1/s, recovery time {q['tau_range'][0]:.1f} to {q['tau_range'][1]:.1f} s.",
         "",
-        f"Open loop: simulated R0 within {100 * summary['open_loop_max_R0_error']:.3f} % of the theory "
-        "at 1, 3 and 6 rad/s.",
+        f"Open loop: the simulated R0 differs from the theory by at most {summary['open_loop_max_R0_error']:.1e} "
+        "(relative) at 1, 3 and 6 rad/s.",
         "",
         f"N-shape: the PID baseline needs {n['pid_time']:.1f} s, the NMPC {n['nmpc_time']:.1f} s"
         + (f" ({n['speed_up']:.1f} times faster)" if n["speed_up"] else "") + ".",

@@ -1,0 +1,55 @@
+"""The main job (rollbot-oc demo), the plot command and the animation."""
+
+import json
+
+import numpy as np
+from PIL import Image
+
+from rollbot_oc.animate import animate_run
+from rollbot_oc.cli import main
+from rollbot_oc.dynamics import rest_state
+from rollbot_oc.simulate import SimulationResult, simulate
+
+FIGURES = ["quasi_stable.png", "eigenvalues.png", "comparison.png", "n_shape_pid_top.png", "n_shape_nmpc_top.png",
+           "n_shape_pid_time.png", "n_shape_nmpc_time.png", "n_shape_pid_energy.png", "n_shape_nmpc_energy.png"]
+
+
+def test_demo_writes_the_report_folder(tmp_path, capsys):
+    out = tmp_path / "report"
+    assert main(["demo", "--quick", "--out", str(out)]) == 0
+    for name in FIGURES + ["comparison.md", "comparison.json", "report.md", "report.json", "openloop.json",
+                           "n_shape_pid.npz", "n_shape_nmpc.npz", "n_shape_nmpc.gif"]:
+        assert (out / name).stat().st_size > 0, name
+    summary = json.loads((out / "report.json").read_text())
+    assert summary["n_shape"]["speed_up"] >= 5 and summary["versions"]["casadi"]
+    assert summary["quasi_stable"]["R0_at_max_speed"] > 1.2
+    table = (out / "comparison.md").read_text()
+    assert "| completion time (s) |" in table and "nmpc" in table
+    with Image.open(out / "n_shape_nmpc.gif") as gif:
+        assert gif.n_frames >= 20
+    assert "[5/5] report" in capsys.readouterr().out  # long steps show progress
+
+
+def test_plot_command_and_saved_runs(tmp_path, capsys):
+    run = simulate(rest_state(), 5.0, speed=lambda t: min(3.0, t))
+    path = run.save(tmp_path / "ramp.npz")
+    again = SimulationResult.load(path)
+    assert np.array_equal(again.x, run.x) and again.params == run.params
+    assert main(["plot", str(path), "--out", str(tmp_path)]) == 0
+    for suffix in ("_top.png", "_time.png", "_energy.png"):
+        assert (tmp_path / f"ramp{suffix}").stat().st_size > 10_000
+    assert main(["plot", str(tmp_path / "missing.npz")]) == 2
+    assert "cannot read a saved run" in capsys.readouterr().err
+
+
+def test_animation_frames(tmp_path):
+    run = simulate(rest_state(), 3.0, speed=lambda t: min(3.0, 2 * t))
+    gif = animate_run(run, tmp_path / "roll.gif", frames=8)
+    with Image.open(gif) as image:
+        assert image.n_frames == 8
+    try:
+        animate_run(run, tmp_path / "roll.avi")
+    except ValueError as exc:
+        assert ".gif or .mp4" in str(exc)
+    else:
+        raise AssertionError("an unknown format must be refused")

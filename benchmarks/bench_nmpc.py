@@ -50,7 +50,8 @@ def main():
             plan = ocp.solve(start, [0.0, 1.2])
             times.append(time.perf_counter() - t0)
             iters.append(plan.iterations)
-        print(f"  IPOPT {hessian:15s} median {statistics.median(times):6.2f} s  iterations {iters[0]}  T = {plan.T:.2f} s")
+        print(f"  IPOPT {hessian:15s} median {statistics.median(times):6.2f} s  iterations {iters[0]}  "
+              f"T = {plan.T:.2f} s")
 
 
 if __name__ == "__main__":

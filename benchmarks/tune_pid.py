@@ -52,7 +52,8 @@ def main():
         results = pool.map(evaluate, candidates)
     good = sorted((r for r in results if r["ok"]), key=lambda r: r["n_time"])
     print(f"{len(candidates)} candidates in {time.perf_counter() - start:.0f} s; {len(good)} meet the stop limit")
-    print(f"{'kp':>5} {'ki':>5} {'kr':>5} {'acc':>5} {'N time (s)':>10} {'max stop (cm)':>13} {'R065 avg/max (cm)':>18}")
+    print(f"{'kp':>5} {'ki':>5} {'kr':>5} {'acc':>5} {'N time (s)':>10} {'max stop (cm)':>13} "
+          f"{'R065 avg/max (cm)':>18}")
     for r in good[:10]:
         g = r["gains"]
         print(f"{g['kp']:5.2f} {g['ki']:5.2f} {g['kr']:5.2f} {g['max_accel']:5.2f} {r['n_time']:10.1f} "

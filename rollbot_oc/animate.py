@@ -40,7 +40,8 @@ def shell_geometry(x, params, meridians: int = 6, parallels: int = 4, points: in
         b = np.pi * k / meridians
         wires.append(T @ (R * np.array([np.cos(a) * np.cos(b), np.cos(a) * np.sin(b), np.sin(a)])))
     for lat in np.linspace(-np.pi / 3, np.pi / 3, parallels):
-        wires.append(T @ (R * np.array([np.cos(lat) * np.cos(a), np.cos(lat) * np.sin(a), np.full_like(a, np.sin(lat))])))
+        ring = np.array([np.cos(lat) * np.cos(a), np.cos(lat) * np.sin(a), np.full_like(a, np.sin(lat))])
+        wires.append(T @ (R * ring))
     axis = T @ np.array([[0.0, 0.0], [0.0, 0.0], [-1.2 * R, 1.2 * R]])
     theta = x[THETA]
     body = params.r0 * np.array([np.sin(params.phi) * np.cos(theta), np.sin(params.phi) * np.sin(theta),
@@ -137,7 +138,8 @@ def animate_run(result, path, centres=None, targets=None, circle=None, title: st
             ctrail.set_data(centres[0, :k + 1], centres[1, :k + 1])
         body.center = (s[0, k], s[1, k])
         axis_dir = quat_to_matrix_np(result.x[QUAT, k])[:, 2]
-        heading.set_data([s[0, k], s[0, k] + 2 * params.R * axis_dir[0]], [s[1, k], s[1, k] + 2 * params.R * axis_dir[1]])
+        tip = s[:, k] + 2 * params.R * axis_dir[:2]
+        heading.set_data([s[0, k], tip[0]], [s[1, k], tip[1]])
         clock.set_text(f"t = {t[k]:.1f} s, driving speed {result.driving_speed[k]:+.1f} rad/s")
         wires, axis, mass = shell_geometry(result.x[:, k], params)
         for line, w in zip(wire_lines, wires):

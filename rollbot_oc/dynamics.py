@@ -50,7 +50,7 @@ import numpy as np
 
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
 from rollbot_oc.rotations import (
-    matrix_to_quat_np, quat_derivative, quat_multiply_np, quat_to_matrix, rot_y_np, rot_z_np, skew,
+    matrix_to_quat_np, quat_derivative, quat_multiply_np, quat_to_matrix, rot_y_np, rot_z_np,
 )
 
 __all__ = [

@@ -113,7 +113,8 @@ def plot_quasi_stable(curves, path=None, title: str | None = None):
     """
     fig, axes = plt.subplots(2, 2, figsize=(9, 6.5), sharex=True)
     panels = [("R0", "revolving radius R0 (m)", 1.0), ("Omega", "revolving rate Omega (rad/s)", 1.0),
-              ("xi", "tilt of motor axis xi (deg)", 180 / np.pi), ("theta0", "pendulum angle theta0 (deg)", 180 / np.pi)]
+              ("xi", "tilt of motor axis xi (deg)", 180 / np.pi),
+              ("theta0", "pendulum angle theta0 (deg)", 180 / np.pi)]
     styles = {"slow": dict(color=THEORY, ls="-"), "fast": dict(color="tab:gray", ls="--")}
     for ax, (key, label, scale) in zip(axes.ravel(), panels):
         for branch, states in curves.items():

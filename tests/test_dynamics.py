@@ -6,7 +6,7 @@ import pytest
 from reference import newton_euler, quat_matrix, rollbot_mass
 
 from rollbot_oc.dynamics import (
-    NW, NX, OMEGA, POS, QUAT, RollbotModel, PointMass, pendulum_mass, rest_state, shell_dynamics, symbolic_model,
+    NW, NX, OMEGA, POS, QUAT, RollbotModel, PointMass, rest_state, shell_dynamics, symbolic_model,
 )
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.rotations import matrix_to_quat_np, quat_to_matrix_np, rot_z_np

@@ -21,7 +21,8 @@ def test_notebook_runs(path, monkeypatch):
     assert all(not cell.get("outputs") for cell in book.cells if cell.cell_type == "code"), "stored with outputs"
     monkeypatch.setenv("ROLLBOT_QUICK", "1")
     monkeypatch.setenv("MPLBACKEND", "module://matplotlib_inline.backend_inline")
-    client = NotebookClient(book, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}})
+    client = NotebookClient(book, timeout=900, kernel_name="python3",
+                            resources={"metadata": {"path": str(path.parent)}})
     client.execute()
     errors = [out for cell in book.cells if cell.cell_type == "code" for out in cell.get("outputs", [])
               if out.get("output_type") == "error"]

@@ -1,6 +1,5 @@
 """Offline trajectory optimisation: constraints hold, plans are feasible in the plant, guesses are physical."""
 
-import math
 
 import numpy as np
 import pytest

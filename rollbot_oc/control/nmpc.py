@@ -253,7 +253,9 @@ class TrackingSolver:
         ``circle = (centre (2,), radius, weights (N+1,))`` adds each node's squared distance from a
         target circle, weighted, to the tracking cost (m, 1/m^2).
         """
-        centre, radius, node_weights = circle if circle is not None else (np.zeros(2), 1.0, np.zeros(self.settings.N + 1))
+        if circle is None:
+            circle = (np.zeros(2), 1.0, np.zeros(self.settings.N + 1))
+        centre, radius, node_weights = circle
         c = np.concatenate([centre, [radius], np.sqrt(node_weights)])
         par = np.concatenate([z0, np.asarray(Zr).T.ravel(), np.ravel(Ur), p, c])
         x_warm, lam_x, lam_g = warm if warm is not None else (None, None, None)
@@ -333,7 +335,8 @@ class RTISolver:
         self.n_x = NZ * (N + 1) + N
         self.n_g = NZ + 13 * N
         tau = s.torque_margin  # the path constraints are scaled (see _stage_linearisation)
-        self.lbg = np.concatenate([np.zeros(NZ), np.tile(np.concatenate([np.zeros(NZ), [-tau, s.normal_margin, 0.0]]), N)])
+        stage_lower = np.concatenate([np.zeros(NZ), [-tau, s.normal_margin, 0.0]])
+        self.lbg = np.concatenate([np.zeros(NZ), np.tile(stage_lower, N)])
         self.ubg = np.concatenate([np.zeros(NZ), np.tile(np.concatenate([np.zeros(NZ), [tau, np.inf, np.inf]]), N)])
         self.lbx, self.ubx = np.full(self.n_x, -np.inf), np.full(self.n_x, np.inf)
         speed = 0.98 * params.max_speed
@@ -683,7 +686,7 @@ class NMPC:
     def __call__(self, obs: Observation) -> Command:
         if self.reference is None:
             self.prepare(obs.state)
-        k, dt, s = self.k, self.dt, self.settings
+        k, dt = self.k, self.dt
         self.k += 1
         t_now = k * dt
         z_meas = to_reduced(obs.state)
@@ -771,7 +774,6 @@ class NMPC:
         self._pid_fresh = True
 
     def _shift(self, x):
-        N = self.settings.N
         Z, U = self.solver.split(x)
         Zs = np.hstack([Z[:, 1:], Z[:, -1:]])
         Us = np.concatenate([U[1:], U[-1:]])

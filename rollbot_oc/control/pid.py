@@ -159,7 +159,8 @@ class QuasiStablePID:
         measured_speed = min(max(obs.theta_dot, 0.0), self.map.omega_max)
         radius = float(self.map.radius(measured_speed))
         centre = centre_of_curvature(obs.position, heading, radius)
-        target = self.layer.target(obs.t, obs.position, heading, centre, self.omega_cmd, float(np.linalg.norm(obs.omega)))
+        shell_rate = float(np.linalg.norm(obs.omega))
+        target = self.layer.target(obs.t, obs.position, heading, centre, self.omega_cmd, shell_rate)
         if target.braking:
             self.omega_cmd = max(0.0, self.omega_cmd - self.layer.predictor.decel * dt)
             self.integral[:] = 0.0

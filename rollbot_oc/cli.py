@@ -95,21 +95,28 @@ def _paper_figures(params, out: Path) -> list[Path]:
     return paths
 
 
+def _report_rows(args, params, rows, header: str, line) -> None:
+    """Write the paper's figures if asked (``--plot``), then print the rows as JSON or as a table."""
+    if args.plot:
+        _paper_figures(params, Path(args.plot))
+    if args.json:
+        print(to_json(rows))
+        return
+    print(header)
+    for row in rows:
+        print(line(row))
+
+
 def _cmd_quasi(args) -> int:
     from rollbot_oc.quasi_stable import quasi_stable_curve
 
     params = load_params(args.params)
     states = quasi_stable_curve(args.omega0, params, args.branch)
     rows = [s.to_dict() for s in states]
-    if args.plot:
-        _paper_figures(params, Path(args.plot))
-    if args.json:
-        print(to_json(rows))
-    else:
-        print(f"{'omega0':>8} {'Omega':>9} {'theta0(deg)':>11} {'xi(deg)':>8} {'R0 (m)':>9} {'branch':>6} converged")
-        for r in rows:
-            print(f"{r['omega0']:8.3f} {r['Omega']:9.4f} {math.degrees(r['theta0']):11.3f} "
-                  f"{math.degrees(r['xi']):8.3f} {r['R0']:9.4f} {r['branch']:>6} {r['converged']}")
+    _report_rows(args, params, rows,
+                 f"{'omega0':>8} {'Omega':>9} {'theta0(deg)':>11} {'xi(deg)':>8} {'R0 (m)':>9} {'branch':>6} converged",
+                 lambda r: f"{r['omega0']:8.3f} {r['Omega']:9.4f} {math.degrees(r['theta0']):11.3f} "
+                           f"{math.degrees(r['xi']):8.3f} {r['R0']:9.4f} {r['branch']:>6} {r['converged']}")
     failed = [r["omega0"] for r in rows if not r["converged"]]
     if failed:
         print(f"rollbot-oc: no quasi-stable state on the {args.branch} branch at omega0 = "
@@ -124,15 +131,9 @@ def _cmd_stability(args) -> int:
     params = load_params(args.params)
     results = stability_curve(args.omega0, params, args.branch)
     rows = [r.to_dict() for r in results]
-    if args.plot:
-        _paper_figures(params, Path(args.plot))
-    if args.json:
-        print(to_json(rows))
-    else:
-        print(f"{'omega0':>8} {'Re(l2)':>9} {'Im(l2)':>9} {'tau (s)':>8} stable")
-        for r in rows:
-            tau = "inf" if r["tau"] is None else f"{r['tau']:.3f}"
-            print(f"{r['omega0']:8.3f} {r['lambda2'][0]:9.4f} {r['lambda2'][1]:9.4f} {tau:>8} {r['stable']}")
+    _report_rows(args, params, rows, f"{'omega0':>8} {'Re(l2)':>9} {'Im(l2)':>9} {'tau (s)':>8} stable",
+                 lambda r: f"{r['omega0']:8.3f} {r['lambda2'][0]:9.4f} {r['lambda2'][1]:9.4f} "
+                           f"{'inf' if r['tau'] is None else format(r['tau'], '.3f'):>8} {r['stable']}")
     return 0
 
 

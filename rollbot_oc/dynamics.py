@@ -55,7 +55,7 @@ from rollbot_oc.rotations import (
 
 __all__ = [
     "STATE_NAMES", "STATE_UNITS", "NX", "NU", "NW", "POS", "QUAT", "OMEGA", "THETA", "THETA_DOT",
-    "PointMass", "ShellDynamics", "shell_dynamics", "pendulum_mass", "gravity_vector",
+    "PointMass", "ShellDynamics", "shell_dynamics", "pendulum_mass", "gravity_vector", "rk4",
     "SymbolicModel", "symbolic_model", "RollbotModel", "rest_state",
     "NZ", "REDUCED_NAMES", "ReducedModel", "reduced_model", "to_reduced", "from_reduced",
 ]
@@ -187,6 +187,21 @@ def pendulum_mass(theta, theta_dot, theta_ddot, *, m, r0, phi) -> PointMass:
 def gravity_vector(g, tilt_x, tilt_y):
     """Gravity in the floor frame, m/s^2, from its in-plane part per g (``RollbotParams.tilt_x``, ``tilt_y``)."""
     return g * ca.vertcat(tilt_x, tilt_y, -ca.sqrt(1 - tilt_x**2 - tilt_y**2))
+
+
+def rk4(rhs, x, h, substeps: int, *args):
+    """``substeps`` classical Runge-Kutta steps of ``x' = rhs(x, *args)`` over a time ``h`` (symbolic or numeric).
+
+    The arguments ``args`` (input, parameters, ...) are held over the whole interval.
+    """
+    step = h / substeps
+    for _ in range(substeps):
+        k1 = rhs(x, *args)
+        k2 = rhs(x + step / 2 * k1, *args)
+        k3 = rhs(x + step / 2 * k2, *args)
+        k4 = rhs(x + step * k3, *args)
+        x = x + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x
 
 
 @dataclass(frozen=True)

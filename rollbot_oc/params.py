@@ -35,7 +35,7 @@ import numpy as np
 
 from rollbot_oc.outputs import atomic_write_text
 
-__all__ = ["RollbotParams", "PARAM_VECTOR_FIELDS", "load_params", "save_params"]
+__all__ = ["RollbotParams", "PARAM_VECTOR_FIELDS", "load_params", "save_params", "read_toml"]
 
 # Order of the numeric parameter vector ``p`` fed to every symbolic Function.  The floor's slope enters
 # as its tilt vector (tilt_x, tilt_y) = sin(slope) (cos slope_dir, sin slope_dir): the in-plane part of
@@ -219,6 +219,23 @@ class RollbotParams:
         return cls(**kwargs)
 
 
+def read_toml(path: str | Path, what: str) -> dict:
+    """The contents of a TOML file.
+
+    Raises
+    ------
+    ValueError
+        ``"<what> <path> does not exist"`` or ``"... is not valid TOML: <reason>"``.
+    """
+    path = Path(path)
+    try:
+        return tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{what} {path} does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{what} {path} is not valid TOML: {exc}") from None
+
+
 def load_params(path: str | Path | None) -> RollbotParams:
     """Load parameters from a TOML file; ``None`` gives the paper's prototype.
 
@@ -239,13 +256,7 @@ def load_params(path: str | Path | None) -> RollbotParams:
     """
     if path is None:
         return RollbotParams()
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"parameter file {path} does not exist") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"parameter file {path} is not valid TOML: {exc}") from None
+    data = read_toml(path, "parameter file")
     if "params" in data and isinstance(data["params"], dict):
         data = data["params"]
     return RollbotParams.from_file_dict(data, source=str(path))

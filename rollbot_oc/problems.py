@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import math
 import time
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -55,7 +54,7 @@ import numpy as np
 
 from rollbot_oc.control.missions import Circle, Waypoints, centre_of_curvature
 from rollbot_oc.dynamics import rest_state
-from rollbot_oc.params import RollbotParams
+from rollbot_oc.params import RollbotParams, read_toml
 from rollbot_oc.simulate import Sensor, SimulationResult, simulate
 
 __all__ = ["Problem", "load_problem", "make_controller", "run_problem", "run_open_loop", "compute_metrics", "RunResult",
@@ -179,15 +178,7 @@ def load_problem(path: str | Path, base: RollbotParams | None = None) -> Problem
     ValueError
         Missing file, invalid TOML, unknown or missing keys, impossible values.
     """
-    path = Path(path)
-    source = str(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"problem file {path} does not exist") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"problem file {path} is not valid TOML: {exc}") from None
-    return problem_from_dict(data, source, base)
+    return problem_from_dict(read_toml(path, "problem file"), str(path), base)
 
 
 def problem_from_dict(data: dict, source: str = "<problem>", base: RollbotParams | None = None) -> Problem:

@@ -39,7 +39,7 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.dynamics import (
-    NU, NW, NX, OMEGA, POS, QUAT, STATE_NAMES, THETA, THETA_DOT, RollbotModel, symbolic_model,
+    NU, NW, NX, OMEGA, POS, QUAT, STATE_NAMES, THETA, THETA_DOT, RollbotModel, rk4, symbolic_model,
 )
 from rollbot_oc.fastcall import FastFunction
 from rollbot_oc.outputs import save_npz
@@ -63,15 +63,7 @@ def _period_integrator(dt: float, substeps: int, method: str) -> ca.Function:
     npar = sym.f.size1_in(2)
     if method == "rk4":
         x, a, p, w = ca.SX.sym("x", NX), ca.SX.sym("a", NU), ca.SX.sym("p", npar), ca.SX.sym("w", NW)
-        h = dt / substeps
-        xk = x
-        for _ in range(substeps):
-            k1 = sym.plant_rhs(xk, a, p, w)
-            k2 = sym.plant_rhs(xk + h / 2 * k1, a, p, w)
-            k3 = sym.plant_rhs(xk + h / 2 * k2, a, p, w)
-            k4 = sym.plant_rhs(xk + h * k3, a, p, w)
-            xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        return ca.Function("rk4_period", [x, a, p, w], [xk])
+        return ca.Function("rk4_period", [x, a, p, w], [rk4(sym.plant_rhs, x, dt, substeps, a, p, w)])
     if method == "cvodes":
         x, a, p, w = ca.SX.sym("x", NX), ca.SX.sym("a", NU), ca.SX.sym("p", npar), ca.SX.sym("w", NW)
         ode = {"x": x, "p": ca.vertcat(a, p, w), "ode": sym.plant_rhs(x, a, p, w)}

@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.dynamics import NW, NZ, from_reduced, reduced_model, to_reduced
+from rollbot_oc.dynamics import NW, NZ, from_reduced, reduced_model, rk4, to_reduced
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
 from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_state
 from rollbot_oc.rotations import quat_multiply, quat_to_matrix
@@ -115,14 +115,8 @@ def interval_function(substeps: int) -> ca.Function:
     """``(z, u, h, p) -> z(h)``: RK4 over one interval of the reduced model, input held, no external wrench."""
     red = reduced_model()
     z, u, h, p = ca.SX.sym("z", NZ), ca.SX.sym("u"), ca.SX.sym("h"), ca.SX.sym("p", NP)
-    zk, step = z, h / substeps
-    for _ in range(substeps):
-        k1 = red.f(zk, u, p, _W0)
-        k2 = red.f(zk + step / 2 * k1, u, p, _W0)
-        k3 = red.f(zk + step / 2 * k2, u, p, _W0)
-        k4 = red.f(zk + step * k3, u, p, _W0)
-        zk = zk + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return ca.Function("rk4_interval", [z, u, h, p], [zk], ["z", "u", "h", "p"], ["z_next"])
+    z_next = rk4(red.f, z, h, substeps, u, p, _W0)
+    return ca.Function("rk4_interval", [z, u, h, p], [z_next], ["z", "u", "h", "p"], ["z_next"])
 
 
 @functools.lru_cache(maxsize=None)

@@ -123,3 +123,15 @@ def test_a_branch_that_ends_is_reported_not_invented():
 def test_bad_requests_are_clear_errors(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+def test_damping_hardly_moves_the_quasi_stable_states():
+    """Paper: 'as long as k0 is not excessively large, it has little impact on the results'."""
+    base = RollbotParams()
+    speeds = [1.0, 3.0, 3 * np.pi]
+    nominal = [s.R0 for s in quasi_stable_curve(speeds, base)]
+    for factor in (0.5, 2.0):
+        changed = [s.R0 for s in quasi_stable_curve(speeds, base.replace(k0=factor * base.k0))]
+        assert np.allclose(changed, nominal, rtol=0.02)  # measured: at most 1 % for half or twice the damping
+    heavy = [s.R0 for s in quasi_stable_curve(speeds, base.replace(k0=4.0 * base.k0))]
+    assert not np.allclose(heavy, nominal, rtol=0.01)  # ... and the check can tell a difference

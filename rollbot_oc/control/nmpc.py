@@ -2,9 +2,12 @@
 
 Structure (do-mpc's separation: model, controller, simulator over one model):
 
-* **Plans** (``control.ocp``): before the run, minimum-time rest-to-rest legs
-  through the stops, or a minimum-time entry onto the quasi-stable orbit of
-  the target circle, computed over the full dynamics on a level floor.
+* **Plans** (``control.ocp``): before the run, over the full dynamics on a
+  level floor: for stops, minimum-time rest-to-rest legs, each then re-timed
+  ``plan_slack`` (10 %) slower onto the NMPC's own 0.1 s grid with the least
+  motor effort; for circles, an entry onto the quasi-stable orbit of the
+  target circle in a fixed time (5 s, else 7 or 10 s) with the least effort,
+  then the orbit itself.
 * **Tracking NMPC**: every ``h = 0.1`` s it solves a multiple-shooting
   problem over ``N = 30`` intervals (3 s, about half a revolution period and
   half the 7 s recovery time) that keeps the predicted reduced state near the

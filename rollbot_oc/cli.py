@@ -47,6 +47,14 @@ def _add_params(p):
                    "default: the paper's prototype")
 
 
+def _add_scenario(p):
+    """The options every scenario-running subcommand shares."""
+    p.add_argument("problem", metavar="PROBLEM.toml", help="scenario file (schema in the README)")
+    _add_params(p)
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the sensor noise (default 0)")
+    p.add_argument("--duration", type=_finite, metavar="T", help="override the problem's duration, s")
+
+
 def _params_with_slope(args):
     params = load_params(args.params)
     if getattr(args, "slope_deg", None) is not None:
@@ -268,21 +276,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_cmd_stability)
 
     p = sub.add_parser("run", help="run a scenario file (problems/*.toml) under a controller and print its metrics")
-    p.add_argument("problem", metavar="PROBLEM.toml", help="scenario file (schema in the README)")
+    _add_scenario(p)
     p.add_argument("--controller", choices=("pid", "nmpc"), default="pid",
                    help="pid: the paper's quasi-stable baseline; nmpc: nonlinear MPC (default pid)")
-    _add_params(p)
-    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the sensor noise (default 0)")
-    p.add_argument("--duration", type=_finite, metavar="T", help="override the problem's duration, s")
     p.add_argument("--out", metavar="DIR", help="write the trajectory (.npz), metrics (.json) and plots (PNG) here")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON (SI units)")
     p.set_defaults(run=_cmd_run)
 
     p = sub.add_parser("compare", help="run the PID baseline and the NMPC on one problem and compare them")
-    p.add_argument("problem", metavar="PROBLEM.toml", help="scenario file (schema in the README)")
-    _add_params(p)
-    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the sensor noise (default 0)")
-    p.add_argument("--duration", type=_finite, metavar="T", help="override the problem's duration, s")
+    _add_scenario(p)
     p.add_argument("--out", metavar="DIR", help="write the table (Markdown, JSON), an overlay plot and both runs here")
     p.add_argument("--json", action="store_true", help="print the table rows as JSON instead of Markdown")
     p.set_defaults(run=_cmd_compare)

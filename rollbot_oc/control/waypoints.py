@@ -132,7 +132,7 @@ class WaypointLayer:
         self.phase = "track"  # track -> braking -> resting -> (next waypoint) ... -> done
         self.stops: list[dict] = []
         self._last_miss = math.inf
-        self._goal, self._goal_index = None, -1
+        self._goal = None  # centre target of the current stop, chosen when its leg starts
 
     @property
     def done(self) -> bool:
@@ -174,8 +174,8 @@ class WaypointLayer:
         if not wp.stop:
             return self._pass_target(wp, position)
         if self.phase == "track":
-            if self._goal_index != self.index:
-                self._goal, self._goal_index = self._stop_centre(wp.point, np.asarray(centre, float)), self.index
+            if self._goal is None:
+                self._goal = self._stop_centre(wp.point, np.asarray(centre, float))
             aligned = np.linalg.norm(np.asarray(centre) - self._goal) < self.align_tolerance
             miss = float(np.linalg.norm(self.predictor.rest_point(position, heading, omega0) - wp.point))
             closest = miss > self._last_miss  # the predicted rest point just passed its closest approach
@@ -185,11 +185,12 @@ class WaypointLayer:
             return Target(self._goal, self.stop_radius, braking=self.phase == "braking")
         if self.phase == "braking" and omega0 <= 0.0:
             self.phase = "resting"
+        target = Target(self._goal, self.stop_radius, braking=True)
         if self.phase == "resting" and shell_rate < self.rest_speed:
             error = float(np.linalg.norm(np.asarray(position) - wp.point))
             self.stops.append({"point": wp.point.tolist(), "time": t, "error": error})
             self._advance()
-        return Target(self._goal, self.stop_radius, braking=True)
+        return target
 
     def _pass_target(self, wp, position) -> Target:
         v = float(np.linalg.norm(wp.velocity))
@@ -204,6 +205,7 @@ class WaypointLayer:
     def _advance(self):
         self.index += 1
         self._last_miss = math.inf
+        self._goal = None
         self.phase = "done" if self.index >= len(self.mission.points) else "track"
 
 

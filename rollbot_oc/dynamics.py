@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
+from rollbot_oc.params import NP, ParamView, RollbotParams
 from rollbot_oc.rotations import (
     matrix_to_quat_np, quat_derivative, quat_multiply_np, quat_to_matrix, rot_y_np, rot_z_np,
 )
@@ -58,6 +58,7 @@ __all__ = [
     "PointMass", "ShellDynamics", "shell_dynamics", "pendulum_mass", "gravity_vector", "rk4",
     "SymbolicModel", "symbolic_model", "RollbotModel", "rest_state",
     "NZ", "REDUCED_NAMES", "ReducedModel", "reduced_model", "to_reduced", "from_reduced",
+    "StateSlices", "FULL", "REDUCED",
 ]
 
 STATE_NAMES = ("x", "y", "qw", "qx", "qy", "qz", "wx", "wy", "wz", "theta", "theta_dot")
@@ -65,7 +66,39 @@ STATE_UNITS = ("m", "m", "1", "1", "1", "1", "rad/s", "rad/s", "rad/s", "rad", "
 INPUT_NAMES = ("theta_ddot",)
 INPUT_UNITS = ("rad/s^2",)
 NX, NU, NW = len(STATE_NAMES), len(INPUT_NAMES), 6
-POS, QUAT, OMEGA, THETA, THETA_DOT = slice(0, 2), slice(2, 6), slice(6, 9), 9, 10
+
+
+@dataclass(frozen=True)
+class StateSlices:
+    """Named parts of a state vector: index it as ``x[FULL.omega]`` or ``z[REDUCED.position]``.
+
+    Attributes
+    ----------
+    position : slice
+        Shell-centre position (x, y), m.
+    quaternion : slice
+        Unit quaternion, scalar first: the shell frame (full state) or the
+        pendulum frame (reduced state), body -> floor.
+    omega : slice
+        Shell angular velocity in the floor frame, rad/s.
+    theta_dot : int
+        Driving speed, rad/s.
+    velocity : slice
+        Everything that is zero at rest: ``omega`` and ``theta_dot``.
+    theta : int or None
+        Motor angle, rad (full state only).
+    """
+
+    position: slice
+    quaternion: slice
+    omega: slice
+    theta_dot: int
+    velocity: slice
+    theta: int | None = None
+
+
+FULL = StateSlices(slice(0, 2), slice(2, 6), slice(6, 9), 10, slice(6, 11), theta=9)
+POS, QUAT, OMEGA, THETA, THETA_DOT = FULL.position, FULL.quaternion, FULL.omega, FULL.theta, FULL.theta_dot
 
 _EZ = ca.DM([0.0, 0.0, 1.0])
 
@@ -244,36 +277,32 @@ class SymbolicModel:
     plant_rhs: ca.Function
 
 
-def _param_symbols(p):
-    return {name: p[i] for i, name in enumerate(PARAM_VECTOR_FIELDS)}
-
-
 def _rollbot_terms(x, u, p, w):
     """Symbolic shell dynamics and derived quantities of Rollbot."""
-    P = _param_symbols(p)
+    P = ParamView(p)
     T = quat_to_matrix(x[QUAT])
     omega = x[OMEGA]
     theta, theta_dot, theta_ddot = x[THETA], x[THETA_DOT], u[0]
-    pendulum = pendulum_mass(theta, theta_dot, theta_ddot, m=P["m"], r0=P["r0"], phi=P["phi"])
-    gravity = gravity_vector(P["g"], P["tilt_x"], P["tilt_y"])
+    pendulum = pendulum_mass(theta, theta_dot, theta_ddot, m=P.m, r0=P.r0, phi=P.phi)
+    gravity = gravity_vector(P.g, P.tilt_x, P.tilt_y)
     force, ext_torque = w[0:3], w[3:6]
-    damping = -P["k0"] * omega
-    dyn = shell_dynamics(T, omega, [pendulum], M=P["M"], I=P["I"], R=P["R"],
+    damping = -P.k0 * omega
+    dyn = shell_dynamics(T, omega, [pendulum], M=P.M, I=P.I, R=P.R,
                          gravity=gravity, force=force, torque=damping + ext_torque)
-    centre_vel = ca.cross(omega, P["R"] * _EZ)
+    centre_vel = ca.cross(omega, P.R * _EZ)
     xdot = ca.vertcat(centre_vel[0:2], quat_derivative(x[QUAT], omega), dyn.omega_dot, theta_dot, theta_ddot)
     # The motor supplies the axial part of the moment the shell exerts on the mass.
     motor_axis = ca.mtimes(T, _EZ)
     tau_m = ca.dot(motor_axis, ca.cross(dyn.offsets[0], dyn.forces[0]))
-    centre = ca.vertcat(x[POS], P["R"])
-    kinetic = 0.5 * P["M"] * ca.sumsqr(centre_vel) + 0.5 * P["I"] * ca.sumsqr(omega) \
-        + 0.5 * P["m"] * ca.sumsqr(dyn.velocities[0])
-    potential = -P["M"] * ca.dot(gravity, centre) - P["m"] * ca.dot(gravity, centre + dyn.offsets[0])
+    centre = ca.vertcat(x[POS], P.R)
+    kinetic = 0.5 * P.M * ca.sumsqr(centre_vel) + 0.5 * P.I * ca.sumsqr(omega) \
+        + 0.5 * P.m * ca.sumsqr(dyn.velocities[0])
+    potential = -P.M * ca.dot(gravity, centre) - P.m * ca.dot(gravity, centre + dyn.offsets[0])
     power = ca.vertcat(tau_m * theta_dot, ca.dot(damping, omega),
                        ca.dot(force, centre_vel) + ca.dot(ext_torque, omega))
     normal = dyn.reaction[2]
     tangential = ca.sqrt(dyn.reaction[0] ** 2 + dyn.reaction[1] ** 2)
-    margins = ca.vertcat(normal, P["mu"] * normal - tangential)
+    margins = ca.vertcat(normal, P.mu * normal - tangential)
     return dict(xdot=xdot, reaction=dyn.reaction, margins=margins, tau_m=tau_m,
                 energy=kinetic + potential, power=power, P=P)
 
@@ -283,7 +312,7 @@ def symbolic_model() -> SymbolicModel:
     """Build (once per process) and return Rollbot's CasADi Functions."""
     x = ca.SX.sym("x", NX)
     u = ca.SX.sym("u", NU)
-    p = ca.SX.sym("p", len(PARAM_VECTOR_FIELDS))
+    p = ca.SX.sym("p", NP)
     w = ca.SX.sym("w", NW)
     terms = _rollbot_terms(x, u, p, w)
     P = terms["P"]
@@ -299,8 +328,8 @@ def symbolic_model() -> SymbolicModel:
     # (the pendulum's effective inertia), so the torque limit is an interval of u.
     tau0 = ca.substitute(terms["tau_m"], u, ca.DM.zeros(NU))
     b = ca.jacobian(terms["tau_m"], u)
-    lower = ca.fmax(-P["max_accel"], (-P["max_torque"] - tau0) / b)
-    upper = ca.fmin(P["max_accel"], (P["max_torque"] - tau0) / b)
+    lower = ca.fmax(-P.max_accel, (-P.max_torque - tau0) / b)
+    upper = ca.fmin(P.max_accel, (P.max_torque - tau0) / b)
     accel_bounds = ca.Function("rollbot_accel_bounds", [x, p, w], [ca.vertcat(lower, upper)],
                                ["x", "p", "w"], ["bounds"])
     u_sat = ca.fmin(ca.fmax(u, lower), upper)
@@ -415,6 +444,7 @@ class RollbotModel:
 
 NZ = 10
 REDUCED_NAMES = ("x", "y", "pw", "px", "py", "pz", "wx", "wy", "wz", "theta_dot")
+REDUCED = StateSlices(slice(0, 2), slice(2, 6), slice(6, 9), 9, slice(6, 10))
 
 
 @dataclass(frozen=True)
@@ -439,12 +469,14 @@ def reduced_model() -> ReducedModel:
     """Build (once per process) the pendulum-frame model from the full one."""
     sym = symbolic_model()
     z, u = ca.SX.sym("z", NZ), ca.SX.sym("u", NU)
-    p, w = ca.SX.sym("p", len(PARAM_VECTOR_FIELDS)), ca.SX.sym("w", NW)
-    x = ca.vertcat(z[0:9], 0.0, z[9])  # the full state with the shell turned so that theta = 0
+    p, w = ca.SX.sym("p", NP), ca.SX.sym("w", NW)
+    R = REDUCED
+    # the full state with the shell turned so that theta = 0
+    x = ca.vertcat(z[R.position], z[R.quaternion], z[R.omega], 0.0, z[R.theta_dot])
     xdot = sym.f(x, u, p, w)
-    motor_axis = ca.mtimes(quat_to_matrix(z[2:6]), _EZ)
-    frame_rate = z[6:9] + z[9] * motor_axis  # angular velocity of the pendulum frame
-    zdot = ca.vertcat(xdot[0:2], quat_derivative(z[2:6], frame_rate), xdot[6:9], u)
+    motor_axis = ca.mtimes(quat_to_matrix(z[R.quaternion]), _EZ)
+    frame_rate = z[R.omega] + z[R.theta_dot] * motor_axis  # angular velocity of the pendulum frame
+    zdot = ca.vertcat(xdot[POS], quat_derivative(z[R.quaternion], frame_rate), xdot[OMEGA], u)
     ins, names = [z, u, p, w], ["z", "u", "p", "w"]
     return ReducedModel(
         ca.Function("rollbot_reduced_f", ins, [zdot], names, ["zdot"]),
@@ -466,5 +498,5 @@ def from_reduced(z, theta: float = 0.0) -> np.ndarray:
     """A full state (11,) with motor angle ``theta`` (rad) for a reduced state (10,)."""
     z = np.asarray(z, float)
     half = -0.5 * theta
-    q = quat_multiply_np(z[2:6], [math.cos(half), 0.0, 0.0, math.sin(half)])
-    return np.concatenate([z[0:2], q, z[6:9], [theta, z[9]]])
+    q = quat_multiply_np(z[REDUCED.quaternion], [math.cos(half), 0.0, 0.0, math.sin(half)])
+    return np.concatenate([z[REDUCED.position], q, z[REDUCED.omega], [theta, z[REDUCED.theta_dot]]])

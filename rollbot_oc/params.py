@@ -35,7 +35,8 @@ import numpy as np
 
 from rollbot_oc.outputs import atomic_write_text
 
-__all__ = ["RollbotParams", "PARAM_VECTOR_FIELDS", "load_params", "save_params", "read_toml"]
+__all__ = ["RollbotParams", "PARAM_VECTOR_FIELDS", "PARAM_INDEX", "NP", "TILT", "ParamView", "load_params",
+           "save_params", "read_toml"]
 
 # Order of the numeric parameter vector ``p`` fed to every symbolic Function.  The floor's slope enters
 # as its tilt vector (tilt_x, tilt_y) = sin(slope) (cos slope_dir, sin slope_dir): the in-plane part of
@@ -44,6 +45,36 @@ PARAM_VECTOR_FIELDS = (
     "R", "M", "I", "phi", "r0", "m", "k0", "g", "mu",
     "max_torque", "max_speed", "max_accel", "tilt_x", "tilt_y",
 )
+
+NP = len(PARAM_VECTOR_FIELDS)
+PARAM_INDEX = {name: i for i, name in enumerate(PARAM_VECTOR_FIELDS)}
+TILT = slice(PARAM_INDEX["tilt_x"], PARAM_INDEX["tilt_y"] + 1)  # the floor's tilt vector in ``p``
+
+
+class ParamView:
+    """Named access to a parameter vector ``p`` (numpy array or CasADi symbol), the one accessor of ``p``.
+
+    ``P = ParamView(p)`` gives ``P.mu``, ``P.max_speed``, ... (entries of ``p``
+    by their names in ``PARAM_VECTOR_FIELDS``), ``P.tilt`` (the tilt vector,
+    2 entries) and ``P.weight``, the robot's weight ``(M + m) g`` in N.
+    """
+
+    __slots__ = ("vector",)
+
+    def __init__(self, p):
+        self.vector = p
+
+    def __getattr__(self, name):
+        if name == "tilt":
+            return self.vector[TILT]
+        if name == "weight":
+            return (self.vector[PARAM_INDEX["M"]] + self.vector[PARAM_INDEX["m"]]) * self.vector[PARAM_INDEX["g"]]
+        try:
+            return self.vector[PARAM_INDEX[name]]
+        except KeyError:
+            raise AttributeError(f"the parameter vector has no entry {name!r}; valid are "
+                                 f"{', '.join(PARAM_VECTOR_FIELDS)}, tilt, weight") from None
+
 
 # File key -> (attribute, scale from file units to SI).
 _FILE_KEYS = {

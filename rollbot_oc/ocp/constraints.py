@@ -1,0 +1,111 @@
+"""Named constraints of Rollbot's optimal-control problems, written once for every route and controller.
+
+Each function returns a ``Constraint`` in the stage symbols of an ``OCP``
+(states ``x``, control ``u``, model parameters ``p``), scaled to be
+dimensionless and of order one, which active-set QP solvers need.  The
+robot's limits come from the parameter vector ``p``, so one problem serves
+any robot and floor; the margins are the fraction of a limit a plan may use.
+
+All of them are built from the same symbolic model as the plant
+(``dynamics.reduced_model``: motor torque, ground reaction), so the plant
+and the controllers agree on what a limit is.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from rollbot_oc.dynamics import NW, reduced_model
+from rollbot_oc.ocp.problem import OCP, Constraint
+from rollbot_oc.params import ParamView
+from rollbot_oc.rotations import quat_to_matrix
+
+__all__ = ["motor_torque", "driving_speed", "motor_accel", "no_jump", "no_slide", "position_box",
+           "circular_obstacle", "at_rest", "reaction_force"]
+
+_W0 = ca.DM.zeros(NW)
+
+
+
+
+def reaction_force(x, u, p):
+    """Ground force on the shell (3,), N, at a stage (floor frame)."""
+    return reduced_model().reaction(x, u, p, _W0)
+
+
+def motor_torque(ocp: OCP, margin: float = 1.0) -> Constraint:
+    """``|tau_m| <= margin * max_torque``: the motor torque the motion needs (N m), over its limit."""
+    red = reduced_model()
+    tau = red.motor_torque(ocp.x, ocp.u, ocp.p, _W0) / ocp.params.max_torque
+    return Constraint(tau, -margin, margin, "motor torque")
+
+
+def driving_speed(ocp: OCP, margin: float = 1.0) -> Constraint:
+    """``|theta_dot| <= margin * max_speed``."""
+    return Constraint(ocp.state.theta_dot / ocp.params.max_speed, -margin, margin, "driving speed")
+
+
+def motor_accel(ocp: OCP, margin: float = 1.0) -> Constraint:
+    """``|theta_ddot| <= margin * max_accel`` (the motor driver's acceleration limit)."""
+    return Constraint(ocp.control.accel / ocp.params.max_accel, -margin, margin, "motor acceleration")
+
+
+def no_jump(ocp: OCP, margin: float = 0.1) -> Constraint:
+    """The normal force stays above ``margin`` times the robot's weight (the shell keeps contact)."""
+    N = reaction_force(ocp.x, ocp.u, ocp.p)
+    return Constraint(N[2] / ocp.params.weight, margin, np.inf, "no jump")
+
+
+def no_slide(ocp: OCP, margin: float = 0.95) -> Constraint:
+    """The ground force stays inside ``margin`` times the friction cone, ``|N_t| <= margin mu N_z``.
+
+    Written smoothly as ``((margin mu N_z)^2 - |N_t|^2) / weight^2 >= 0``, with
+    ``no_jump`` keeping ``N_z > 0`` alongside.
+    """
+    N = reaction_force(ocp.x, ocp.u, ocp.p)
+    P = ocp.params
+    slack = ((margin * P.mu * N[2]) ** 2 - N[0] ** 2 - N[1] ** 2) / P.weight ** 2
+    return Constraint(slack, 0.0, np.inf, "no slide")
+
+
+def position_box(ocp: OCP, lower, upper) -> Constraint:
+    """The shell centre stays in the box ``lower <= (x, y) <= upper`` (m)."""
+    return Constraint(ocp.state.position, lower, upper, "position box")
+
+
+def circular_obstacle(ocp: OCP, centre, radius) -> Constraint:
+    """The shell keeps out of a round obstacle: centre distance at least ``radius`` plus the shell's radius ``R``.
+
+    Parameters
+    ----------
+    centre : array_like (2,) or casadi.SX
+        Obstacle centre, m (a number, or a problem parameter).
+    radius : float or casadi.SX
+        Obstacle radius, m.
+    """
+    offset = ocp.state.position - centre
+    clearance = ca.sqrt(ca.sumsqr(offset) + 1e-12) - (radius + ocp.params.R)
+    return Constraint(clearance / ocp.params.R, 0.0, np.inf, "circular obstacle")
+
+
+def at_rest(ocp: OCP) -> Constraint:
+    """At rest and balanced: shell and motor still, and the centre of mass straight above the contact point.
+
+    ``omega = 0``, ``theta_dot = 0`` (rad/s), and the robot's centre of mass
+    on the line through the contact point along gravity (two conditions,
+    scaled by ``R``): a static equilibrium of the full model on the floor the
+    parameters describe, level or sloped.  On a level floor it is the
+    pendulum straight below the shell centre.
+    """
+    P = ocp.params
+    T = quat_to_matrix(ocp.state.quaternion)
+    body = ca.vertcat(P.r0 * ca.sin(P.phi), 0, -P.r0 * ca.cos(P.phi))  # mass in the pendulum frame
+    mass = ca.mtimes(T, body)
+    # centre of mass relative to the contact point, and gravity per g (floor frame)
+    com = (P.M * ca.vertcat(0, 0, P.R) + P.m * (ca.vertcat(0, 0, P.R) + mass)) / (P.M + P.m)
+    down = ca.vertcat(P.tilt[0], P.tilt[1], -ca.sqrt(1 - P.tilt[0] ** 2 - P.tilt[1] ** 2))
+    # component of the centre of mass across gravity, in the floor's x and y directions
+    across = com - ca.dot(com, down) * down
+    expr = ca.vertcat(ocp.state.velocity, across[0:2] / P.R)
+    return Constraint(expr, 0.0, 0.0, "at rest")

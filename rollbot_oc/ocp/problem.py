@@ -1,0 +1,268 @@
+"""An optimal-control problem written like the math: states, controls, costs, constraints, free or fixed time.
+
+::
+
+    ocp = OCP(N=40, T=FreeTime(guess=4.0))          # Rollbot's pendulum-frame model by default
+    x, u, P = ocp.state, ocp.control, ocp.params    # named parts; P is a ParamView of the model parameters
+    goal = ocp.parameter("goal", 2)
+    ocp.initial_state()                             # x(0) = parameter "x0"
+    ocp.minimize_time()
+    ocp.add_cost(1e-3 * u.accel**2)                 # integral over the horizon
+    ocp.subject_to(motor_torque(margin=0.9), no_jump(0.1), no_slide(0.95), driving_speed(0.98), motor_accel())
+    ocp.subject_to(x.position == goal, at="end")
+    ocp.subject_to(at_rest(), at="end")
+    solution = ocp.solver("ipopt").solve(x0=z0, goal=[0, 1.2], p=params.vector())
+
+Expressions are CasADi SX in the symbols of one stage: ``ocp.x`` (states),
+``ocp.u`` (controls), ``ocp.p`` (model parameters), the problem's own
+parameters (``ocp.parameter``) and global decision variables
+(``ocp.variable``).  Where a term applies is ``at``: ``"path"`` (every
+interval, and for terms without controls also the last node), ``"start"``,
+``"end"``, ``("end", phase)`` (the last node of a phase) or a node index.
+
+Phases.  ``N`` and ``T`` may be sequences: the horizon is a chain of phases,
+each with its own number of intervals and its own (fixed or free) duration,
+joined by continuity of the state; a multi-stop motion plans every leg with
+one problem.  ``ocp.T`` lists the duration symbols, usable in costs.
+
+Every route (``ocp.solver(name)``) solves this one description; see
+``rollbot_oc.ocp.routes``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import casadi as ca
+import numpy as np
+
+from rollbot_oc.errors import ConfigError
+from rollbot_oc.ocp.model import OCPModel, rollbot_model
+from rollbot_oc.params import ParamView
+
+__all__ = ["OCP", "FreeTime", "Constraint", "bounded"]
+
+
+@dataclass(frozen=True)
+class FreeTime:
+    """A free phase duration: a decision variable with bounds and an initial guess (s)."""
+
+    guess: float = 5.0
+    lower: float = 0.1
+    upper: float = 60.0
+
+    def __post_init__(self):
+        if not (0 <= self.lower <= self.guess <= self.upper and math.isfinite(self.upper)):
+            raise ConfigError(f"FreeTime: need 0 <= lower <= guess <= upper < inf s, got lower = {self.lower}, "
+                              f"guess = {self.guess}, upper = {self.upper}")
+
+
+@dataclass(frozen=True)
+class Constraint:
+    """``lower <= expr <= upper`` elementwise, with a name; ``soft`` (a penalty weight) makes it soft.
+
+    A soft constraint may be violated by slacks ``s >= 0`` at the price
+    ``soft * sum(s) + 0.5 * soft_quadratic * sum(s^2)`` in the cost (an exact
+    penalty: for a weight above the constraint's multiplier the solution is
+    the hard one whenever that exists, and a nearby one when it does not).
+    """
+
+    expr: object
+    lower: np.ndarray
+    upper: np.ndarray
+    name: str = "constraint"
+    soft: float | None = None
+    soft_quadratic: float = 0.0
+
+    def __post_init__(self):
+        n = self.expr.numel()
+        lower = np.broadcast_to(np.asarray(self.lower, float), (n,)).copy()
+        upper = np.broadcast_to(np.asarray(self.upper, float), (n,)).copy()
+        if np.any(lower > upper):
+            raise ConfigError(f"constraint {self.name}: lower bound above upper bound")
+        object.__setattr__(self, "lower", lower)
+        object.__setattr__(self, "upper", upper)
+        if self.soft is not None and not self.soft > 0:
+            raise ConfigError(f"constraint {self.name}: soft = {self.soft!r} must be a weight > 0")
+
+    def softened(self, weight: float, quadratic: float = 0.0) -> "Constraint":
+        """The same constraint as a soft one with L1 weight ``weight`` and L2 weight ``quadratic``."""
+        return Constraint(self.expr, self.lower, self.upper, self.name, weight, quadratic)
+
+
+def bounded(lower, expr, upper, name: str = "bounded") -> Constraint:
+    """``lower <= expr <= upper`` (CasADi cannot chain comparisons)."""
+    return Constraint(ca.SX(expr) if not isinstance(expr, (ca.SX, ca.MX)) else expr, lower, upper, name)
+
+
+def _from_relation(relation, name: str) -> Constraint:
+    """A ``Constraint`` from an SX relation ``a <= b``, ``a >= b`` or ``a == b`` (elementwise)."""
+    exprs, lower, upper = [], [], []
+    for i in range(relation.numel()):
+        e = relation[i]
+        if e.is_op(ca.OP_EQ):
+            kind = "eq"
+        elif e.is_op(ca.OP_LE) or e.is_op(ca.OP_LT):
+            kind = "le"
+        else:
+            raise ConfigError(f"{name}: expected a relation (<=, >=, ==) or a Constraint, got {e}")
+        a, b = e.dep(0), e.dep(1)
+        if b.is_constant():
+            expr, bound, constant_right = a, float(b), True
+        elif a.is_constant():
+            expr, bound, constant_right = b, float(a), False
+        else:
+            expr, bound, constant_right = a - b, 0.0, True
+        exprs.append(expr)
+        if kind == "eq":
+            lower.append(bound)
+            upper.append(bound)
+        elif constant_right:  # expr <= bound
+            lower.append(-np.inf)
+            upper.append(bound)
+        else:  # bound <= expr
+            lower.append(bound)
+            upper.append(np.inf)
+    return Constraint(ca.vertcat(*exprs), np.array(lower), np.array(upper), name)
+
+
+_PLACES = ("path", "start", "end")
+
+
+def _check_place(at, n_phases: int):
+    if at in _PLACES:
+        return at
+    if isinstance(at, tuple) and len(at) == 2 and at[0] == "end" and isinstance(at[1], int) \
+            and 0 <= at[1] < n_phases:
+        return at
+    if isinstance(at, int) and not isinstance(at, bool):
+        return at
+    raise ConfigError(f"at = {at!r}; valid are 'path', 'start', 'end', ('end', phase in 0..{n_phases - 1}) "
+                      "or a node index")
+
+
+class OCP:
+    """An optimal-control problem over a chain of phases (see module doc).
+
+    Parameters
+    ----------
+    N : int or sequence of int
+        Shooting intervals of each phase.
+    T : float, FreeTime, or a sequence of them
+        Duration of each phase, s: fixed (a number) or free (``FreeTime``).
+    model : OCPModel, optional
+        The dynamics; ``rollbot_model()`` (Rollbot in the pendulum frame) by default.
+    substeps : int
+        RK4 steps per shooting interval.
+    """
+
+    def __init__(self, N=40, T=None, model: OCPModel | None = None, substeps: int = 2):
+        self.model = model or rollbot_model()
+        Ns = tuple(N) if isinstance(N, (list, tuple)) else (N,)
+        Ts = tuple(T) if isinstance(T, (list, tuple)) else (T if T is not None else FreeTime(),) * len(Ns)
+        if len(Ts) != len(Ns):
+            raise ConfigError(f"OCP: {len(Ns)} phases in N but {len(Ts)} durations in T")
+        for n in Ns:
+            if not (isinstance(n, int) and n >= 1):
+                raise ConfigError(f"OCP: N = {n!r} must be a whole number of intervals >= 1")
+        for t in Ts:
+            if not isinstance(t, FreeTime) and not (isinstance(t, (int, float)) and 0 < t < math.inf):
+                raise ConfigError(f"OCP: T = {t!r} must be a duration > 0 s or FreeTime(...)")
+        if not (isinstance(substeps, int) and substeps >= 1):
+            raise ConfigError(f"OCP: substeps = {substeps!r} must be a whole number >= 1")
+        self.N, self.durations, self.substeps = Ns, Ts, substeps
+        m = self.model
+        self.x = ca.SX.sym("x", m.nx)
+        self.u = ca.SX.sym("u", m.nu)
+        self.p = ca.SX.sym("p", m.np)
+        self.T = [ca.SX.sym(f"T{i}") for i in range(len(Ns))]
+        s = m.slices
+        self.state = SimpleNamespace(**{name: self.x[getattr(s, name)] for name in
+                                        ("position", "quaternion", "omega", "theta_dot", "velocity")})
+        self.control = SimpleNamespace(accel=self.u[0])
+        self.params = ParamView(self.p)
+        self.parameters: dict[str, ca.SX] = {}
+        self.variables: dict[str, tuple] = {}  # name -> (symbol, lower, upper, guess)
+        self.costs: list[tuple] = []           # (kind, expression, at)
+        self.constraints: list[tuple] = []     # (Constraint, at)
+        self.time_weight = 0.0
+
+    # -- declarations ---------------------------------------------------------------------------
+    @property
+    def phases(self) -> int:
+        """Number of phases."""
+        return len(self.N)
+
+    def parameter(self, name: str, n: int = 1) -> ca.SX:
+        """A named problem parameter of ``n`` entries, given at solve time (``solve(name=value)``)."""
+        if name in self.parameters or name in ("p",):
+            raise ConfigError(f"OCP: parameter {name!r} is already declared (or reserved)")
+        self.parameters[name] = ca.SX.sym(name, n)
+        return self.parameters[name]
+
+    def variable(self, name: str, n: int = 1, lower=-np.inf, upper=np.inf, guess=0.0) -> ca.SX:
+        """A named global decision variable of ``n`` entries (not tied to a stage), with bounds and a guess."""
+        if name in self.variables:
+            raise ConfigError(f"OCP: variable {name!r} is already declared")
+        sym = ca.SX.sym(name, n)
+        self.variables[name] = (sym, np.broadcast_to(np.asarray(lower, float), (n,)).copy(),
+                                np.broadcast_to(np.asarray(upper, float), (n,)).copy(),
+                                np.broadcast_to(np.asarray(guess, float), (n,)).copy())
+        return sym
+
+    def initial_state(self, name: str = "x0") -> ca.SX:
+        """Declare the parameter ``name`` and the constraint ``x(0) = name``; returns the parameter."""
+        x0 = self.parameter(name, self.model.nx)
+        self.subject_to(self.x == x0, at="start", name="initial state")
+        return x0
+
+    # -- costs ----------------------------------------------------------------------------------
+    def minimize_time(self, weight: float = 1.0):
+        """Add ``weight`` times the total duration (sum of the phase durations), s."""
+        self.time_weight += float(weight)
+
+    def add_cost(self, expr, at="path"):
+        """Add a general cost term: on the path its integral over time (``sum h_k expr_k``), else its value."""
+        self.costs.append(("general", ca.SX(expr), _check_place(at, self.phases)))
+
+    def add_least_squares(self, residual, weight=1.0, at="path"):
+        """Add ``0.5 * sum(weight * residual^2)``: integrated over time on the path, else at the node.
+
+        Least-squares terms are what the Gauss-Newton routes (SQP, RTI) build
+        their Hessian from (``J^T W J`` by AD).
+        """
+        residual = ca.SX(residual)
+        w = np.broadcast_to(np.asarray(weight, float), (residual.numel(),))
+        if np.any(w < 0):
+            raise ConfigError("add_least_squares: weights must be >= 0")
+        self.costs.append(("lsq", residual * ca.DM(np.sqrt(w)), _check_place(at, self.phases)))
+
+    # -- constraints ----------------------------------------------------------------------------
+    def subject_to(self, *constraints, at="path", name: str | None = None, soft: float | None = None):
+        """Add constraints: ``Constraint`` objects (e.g. from ``rollbot_oc.ocp.constraints``) or
+        SX relations (``expr <= c``, ``expr == goal``), applied ``at`` a place (see module doc).
+
+        ``soft`` makes them soft with that L1 penalty weight (see ``Constraint``).
+        """
+        place = _check_place(at, self.phases)
+        for c in constraints:
+            if not isinstance(c, Constraint):
+                c = _from_relation(ca.SX(c), name or "constraint")
+            elif name:
+                c = Constraint(c.expr, c.lower, c.upper, name, c.soft, c.soft_quadratic)
+            if soft is not None:
+                c = c.softened(soft)
+            if place != "path" and ca.depends_on(c.expr, self.u) and place != "start":
+                raise ConfigError(f"constraint {c.name}: a condition on the controls cannot apply at {place!r} "
+                                  "(the last node has no control)")
+            self.constraints.append((c, place))
+
+    # -- solving --------------------------------------------------------------------------------
+    def solver(self, route: str = "ipopt", **options):
+        """Build (once) a solver of this problem by the named route (``rollbot_oc.ocp.routes.ROUTES``)."""
+        from rollbot_oc.ocp.routes import make_route
+        from rollbot_oc.ocp.transcription import Transcription
+
+        return make_route(route, Transcription(self), **options)

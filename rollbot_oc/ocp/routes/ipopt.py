@@ -1,0 +1,98 @@
+"""The IPOPT route: interior point to convergence."""
+
+from __future__ import annotations
+
+import time
+
+import casadi as ca
+import numpy as np
+
+from rollbot_oc.errors import ConfigError, Interrupted
+from rollbot_oc.ocp.solution import OCPSolution
+
+__all__ = ["IpoptRoute", "nlp_solution"]
+
+_INTERRUPTED = ("User_Requested_Stop", "NonIpopt_Exception_Thrown")
+
+
+def nlp_solution(route: str, solver: ca.Function, transcription, sol, par, elapsed: float) -> OCPSolution:
+    """An ``OCPSolution`` from an ``nlpsol`` result and its stats."""
+    stats = solver.stats()
+    status = str(stats.get("return_status", "unknown"))
+    w = np.array(sol["x"]).ravel()
+    success = bool(stats.get("success", False)) and bool(np.all(np.isfinite(w)))
+    return OCPSolution(route, status, success, int(stats.get("iter_count", 0)), elapsed, float(sol["f"]), w,
+                       np.array(sol["lam_x"]).ravel(), np.array(sol["lam_g"]).ravel(), par, transcription)
+
+
+def call_nlp(solver, args: dict):
+    """Call an ``nlpsol`` Function; a Ctrl-C inside the solver becomes ``Interrupted``, not a failed solve."""
+    try:
+        sol = solver(**args)
+    except KeyboardInterrupt:
+        raise Interrupted("interrupted") from None
+    status = str(solver.stats().get("return_status", ""))
+    if status in _INTERRUPTED and _sigint_pending():
+        raise Interrupted("interrupted")
+    return sol
+
+
+def _sigint_pending() -> bool:
+    """True if a SIGINT arrived during the last native call (Python raises it at the next check)."""
+    try:
+        time.sleep(0)  # let Python run pending signal handlers
+    except KeyboardInterrupt:
+        return True
+    return False
+
+
+class IpoptRoute:
+    """IPOPT on the transcription (see ``rollbot_oc.ocp.routes``).
+
+    Parameters
+    ----------
+    transcription : Transcription
+    hessian : {"exact", "limited-memory"}
+        The Hessian of the Lagrangian: exact by AD, or quasi-Newton.
+    max_iter : int
+    tol : float
+        IPOPT's convergence tolerance.
+    options : dict, optional
+        Further IPOPT options.
+    """
+
+    name = "ipopt"
+
+    def __init__(self, transcription, hessian: str = "exact", max_iter: int = 500, tol: float = 1e-8,
+                 options: dict | None = None):
+        if hessian not in ("exact", "limited-memory"):
+            raise ConfigError(f"ipopt hessian = {hessian!r}; valid are 'exact', 'limited-memory'")
+        self.transcription = tr = transcription
+        ipopt = {"print_level": 0, "sb": "yes", "max_iter": max_iter, "tol": tol, "acceptable_tol": 1e-6,
+                 "hessian_approximation": hessian, **(options or {})}
+        nlp = {"x": tr.w, "p": tr.par, "f": tr.f, "g": tr.g}
+        self.solver = ca.nlpsol("ocp_ipopt", "ipopt", nlp, {"ipopt": ipopt, "print_time": False})
+
+    def solve(self, guess=None, warm: OCPSolution | None = None, **parameters) -> OCPSolution:
+        """Solve to convergence; raises ``NotConverged`` (with the failed solution) if it does not."""
+        return self.attempt(guess, warm, **parameters).check()
+
+    def attempt(self, guess=None, warm: OCPSolution | None = None, **parameters) -> OCPSolution:
+        """Solve and return the solution whatever its status (check ``success``)."""
+        tr = self.transcription
+        par = tr.parameter_vector(parameters)
+        args = dict(p=par, lbx=tr.lbw, ubx=tr.ubw, lbg=tr.lbg, ubg=tr.ubg)
+        if warm is not None:
+            args.update(x0=warm.w, lam_x0=warm.lam_w, lam_g0=warm.lam_g)
+        else:
+            args["x0"] = tr.default_guess() if guess is None else np.asarray(guess, float)
+        start = time.perf_counter()
+        sol = call_nlp(self.solver, args)
+        return nlp_solution(self.name, self.solver, tr, sol, par, time.perf_counter() - start)
+
+    def to_function(self) -> ca.Function:
+        """``(w_guess, par) -> w``: the IPOPT solve as a CasADi Function."""
+        tr = self.transcription
+        w0, par = ca.MX.sym("w0", tr.w.numel()), ca.MX.sym("par", tr.par.numel())
+        sol = self.solver(x0=w0, p=par, lbx=tr.lbw, ubx=tr.ubw, lbg=tr.lbg, ubg=tr.ubg)
+        return ca.Function("ocp_ipopt_solve", [w0, par], [sol["x"]], ["w0", "par"], ["w"])

@@ -1,0 +1,204 @@
+"""Gauss-Newton SQP and the real-time iteration: QPs from the AD Jacobians of one transcription.
+
+Each iteration evaluates, in one CasADi Function (``linearisation``, built
+once, optionally compiled to C): the constraints ``g`` and their Jacobian
+``J``, the gradient of the cost and the Gauss-Newton Hessian
+
+    H = J_r^T J_r + hessian(general cost) + regularisation * I,
+
+with ``J_r`` the Jacobian of the least-squares residuals; every derivative and
+every sparsity pattern comes from CasADi's AD of the transcription, none is
+written by hand.  The QP
+
+    min 0.5 d^T H d + grad^T d   s.t.  lbg - g <= J d <= ubg - g,  lbw - w <= d <= ubw - w
+
+is solved by a CasADi conic solver, warm-started from the previous active
+set.  ``SQPRoute`` iterates to convergence with a backtracking line search on
+the L1 merit function; ``RTIRoute`` takes one full step per call from a warm
+start, as real-time NMPC does.
+"""
+
+from __future__ import annotations
+
+import time
+
+import casadi as ca
+import numpy as np
+
+from rollbot_oc.errors import ConfigError
+from rollbot_oc.ocp.solution import OCPSolution
+
+__all__ = ["SQPRoute", "RTIRoute"]
+
+
+class SQPRoute:
+    """Gauss-Newton SQP to convergence (see module doc).
+
+    Parameters
+    ----------
+    transcription : Transcription
+    qp_solver : str
+        A CasADi conic plugin (``"qrqp"``, ``"osqp"``, ``"hpipm"``, ...).
+    max_iter : int
+        SQP iterations.
+    tol : float
+        Converged when the step and the constraint violation are below it.
+    regularisation : float
+        Multiple of the identity added to the Hessian.
+    line_search : bool
+        Backtracking on the L1 merit function (off: full steps).
+    compiled : bool or None
+        Evaluate the linearisation as compiled C (``rollbot_oc.codegen``);
+        None compiles when a C compiler exists.
+    qp_options : dict, optional
+        Options of the conic solver.
+    """
+
+    name = "sqp"
+
+    def __init__(self, transcription, qp_solver: str = "qrqp", max_iter: int = 100, tol: float = 1e-8,
+                 regularisation: float = 1e-8, line_search: bool = True, compiled: bool | None = False,
+                 qp_options: dict | None = None):
+        if not ca.has_conic(qp_solver):
+            raise ConfigError(f"qp_solver = {qp_solver!r} is not a CasADi conic plugin available here")
+        if not (isinstance(max_iter, int) and max_iter >= 1):
+            raise ConfigError(f"max_iter = {max_iter!r} must be a whole number >= 1")
+        self.transcription = tr = transcription
+        self.max_iter, self.tol, self.line_search = max_iter, tol, line_search
+        w, par = tr.w, tr.par
+        n = w.numel()
+        J = ca.jacobian(tr.g, w)
+        Jr = ca.jacobian(tr.residuals, w)
+        H = ca.mtimes(Jr.T, Jr) + ca.hessian(tr.general, w)[0] + regularisation * ca.MX.eye(n)
+        grad = ca.gradient(tr.general, w) + ca.mtimes(Jr.T, tr.residuals)
+        lin = ca.Function("ocp_linearisation", [w, par], [H, grad, tr.g, J, tr.f],
+                          ["w", "par"], ["H", "grad", "g", "J", "f"])
+        merit = ca.Function("ocp_cost_constraints", [w, par], [tr.f, tr.g], ["w", "par"], ["f", "g"])
+        if compiled or compiled is None:
+            from rollbot_oc.codegen import compiled as compile_function, compiler
+
+            if compiled or compiler() is not None:
+                lin, merit = compile_function(lin), compile_function(merit)
+        self.linearisation, self.merit = lin, merit
+        opts = {"error_on_fail": False}
+        if qp_solver == "qrqp":
+            opts.update(print_iter=False, print_header=False, max_iter=1000)
+        elif qp_solver == "osqp":
+            opts.update(osqp={"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 20000, "polish": True})
+        opts.update(qp_options or {})
+        self.qp_solver = qp_solver
+        self.qp = ca.conic("ocp_qp", qp_solver, {"h": H.sparsity(), "a": J.sparsity()}, opts)
+
+    # -- one QP ---------------------------------------------------------------------------------
+    def _qp_step(self, w, lam_w, lam_g, par):
+        """The QP at ``w``: returns ``(d, lam_w, lam_g, ok, status, f, g, grad)``."""
+        tr = self.transcription
+        H, grad, g, J, f = self.linearisation(w, par)
+        g = np.array(g).ravel()
+        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(np.array(grad))) and np.all(np.isfinite(J.nonzeros()))):
+            return None, lam_w, lam_g, False, "non-finite linearisation", float(f), g, None
+        args = dict(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=tr.lbw - w, ubx=tr.ubw - w)
+        if lam_w is not None:
+            args.update(lam_x0=lam_w, lam_a0=lam_g)
+        try:
+            sol = self.qp(**args)
+        except RuntimeError as exc:  # an ill-posed QP is a failed step, not a crash
+            return None, lam_w, lam_g, False, f"QP error: {str(exc).splitlines()[-1][:80]}", float(f), g, None
+        stats = self.qp.stats()
+        ok = bool(stats.get("success", False))
+        d = np.array(sol["x"]).ravel()
+        ok = ok and bool(np.all(np.isfinite(d)))
+        status = str(stats.get("return_status", "success" if ok else "failed"))
+        return (d, np.array(sol["lam_x"]).ravel(), np.array(sol["lam_a"]).ravel(), ok, status, float(f), g,
+                np.array(grad).ravel())
+
+    def _violation(self, g) -> float:
+        tr = self.transcription
+        return float(np.sum(np.maximum(tr.lbg - g, 0.0)) + np.sum(np.maximum(g - tr.ubg, 0.0)))
+
+    # -- iterations -----------------------------------------------------------------------------
+    def iterate(self, w, lam_w, lam_g, par, max_iter: int):
+        """Up to ``max_iter`` SQP iterations from ``w``; returns ``(w, lam_w, lam_g, status, ok, iterations)``."""
+        status, ok, it = "max iterations", False, 0
+        for it in range(1, max_iter + 1):
+            d, lw, lg, qp_ok, qp_status, f, g, grad = self._qp_step(w, lam_w, lam_g, par)
+            if not qp_ok:
+                return w, lam_w, lam_g, f"QP failed: {qp_status}", False, it
+            alpha = self._step_length(w, d, grad, lg, f, g, par) if self.line_search else 1.0
+            w = w + alpha * d
+            lam_w = lw if lam_w is None else (1 - alpha) * lam_w + alpha * lw
+            lam_g = lg if lam_g is None else (1 - alpha) * lam_g + alpha * lg
+            if max_iter == 1:
+                return w, lam_w, lam_g, "step", True, it
+            if np.abs(alpha * d).max(initial=0.0) < self.tol:
+                _f, g_new = self.merit(w, par)
+                if self._violation(np.array(g_new).ravel()) < self.tol * max(1, g.size):
+                    return w, lam_w, lam_g, "converged", True, it
+        return w, lam_w, lam_g, status, ok, it
+
+    def _step_length(self, w, d, grad, lam_g, f, g, par) -> float:
+        """Backtracking (Armijo, halving) on the L1 merit ``f + nu * violation``."""
+        nu = 1.1 * np.abs(lam_g).max(initial=0.0) + 1e-6
+        violation = self._violation(g)
+        phi0 = f + nu * violation
+        slope = min(float(np.dot(grad, d)) - nu * violation, 0.0)  # merit's derivative along d
+        alpha = 1.0
+        for _ in range(16):
+            f_new, g_new = self.merit(w + alpha * d, par)
+            if float(f_new) + nu * self._violation(np.array(g_new).ravel()) <= phi0 + 1e-4 * alpha * slope:
+                return alpha
+            alpha *= 0.5
+        return alpha
+
+    # -- the route protocol ---------------------------------------------------------------------
+    def solve(self, guess=None, warm: OCPSolution | None = None, **parameters) -> OCPSolution:
+        """Iterate to convergence; raises ``NotConverged`` (with the last iterate) if it does not."""
+        return self.attempt(guess, warm, **parameters).check()
+
+    def attempt(self, guess=None, warm: OCPSolution | None = None, max_iter: int | None = None,
+                **parameters) -> OCPSolution:
+        """Iterate and return the last iterate whatever its status (check ``success``)."""
+        tr = self.transcription
+        par = tr.parameter_vector(parameters)
+        if warm is not None:
+            w, lam_w, lam_g = warm.w.copy(), warm.lam_w, warm.lam_g
+        else:
+            w = tr.default_guess() if guess is None else np.asarray(guess, float).copy()
+            lam_w = lam_g = None
+        w = np.clip(w, tr.lbw, tr.ubw)
+        start = time.perf_counter()
+        w, lam_w, lam_g, status, ok, it = self.iterate(w, lam_w, lam_g, par, max_iter or self.max_iter)
+        elapsed = time.perf_counter() - start
+        f, _g = self.merit(w, par)
+        lam_w = np.zeros(w.size) if lam_w is None else lam_w
+        lam_g = np.zeros(tr.lbg.size) if lam_g is None else lam_g
+        return OCPSolution(self.name, status, ok, it, elapsed, float(f), w, lam_w, lam_g, par, tr)
+
+    def to_function(self) -> ca.Function:
+        """One full SQP step as a CasADi Function ``(w, lam_w, lam_g, par) -> (w, lam_w, lam_g)``.
+
+        The QP solver is inside the Function, so the step can be generated as C.
+        """
+        tr = self.transcription
+        n, m = tr.w.numel(), tr.g.numel()
+        w, lw, lg, par = ca.MX.sym("w", n), ca.MX.sym("lam_w", n), ca.MX.sym("lam_g", m), ca.MX.sym("par",
+                                                                                                   tr.par.numel())
+        H, grad, g, J, _f = self.linearisation(w, par)
+        sol = self.qp(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=tr.lbw - w, ubx=tr.ubw - w,
+                      lam_x0=lw, lam_a0=lg)
+        return ca.Function("ocp_sqp_step", [w, lw, lg, par], [w + sol["x"], sol["lam_x"], sol["lam_a"]],
+                           ["w", "lam_w", "lam_g", "par"], ["w_next", "lam_w_next", "lam_g_next"])
+
+
+class RTIRoute(SQPRoute):
+    """The real-time iteration: one full Gauss-Newton SQP step per call, from a warm start.
+
+    ``solve``/``attempt`` take ``max_iter`` (default 1) steps; a step whose QP
+    fails is reported with the QP's status.
+    """
+
+    name = "rti"
+
+    def __init__(self, transcription, qp_solver: str = "qrqp", iterations: int = 1, **options):
+        options.setdefault("line_search", False)
+        super().__init__(transcription, qp_solver, max_iter=iterations, **options)

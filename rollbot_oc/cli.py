@@ -31,7 +31,7 @@ import warnings
 from contextlib import contextmanager
 
 from rollbot_oc import __version__
-from rollbot_oc.errors import ConfigError, NumericalFailure
+from rollbot_oc.errors import ConfigError, NumericalFailure, interruptible
 from rollbot_oc.outputs import output_folder, to_json, write_json
 from rollbot_oc.params import load_params
 
@@ -417,13 +417,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 @contextmanager
 def _one_line_warnings():
-    """Show warnings as ``rollbot-oc: warning: ...`` lines on stderr, each once."""
+    """Show warnings (as filtered by Python: each once per place) as ``rollbot-oc: warning: ...`` lines on stderr."""
     def show(message, category, filename, lineno, file=None, line=None):
         text = " ".join(str(message).split())
         print(f"{PROG}: warning: {text}", file=sys.stderr)
 
     with warnings.catch_warnings():
-        warnings.simplefilter("default")
         warnings.showwarning = show
         yield
 
@@ -442,13 +441,17 @@ def _is_failure(exc: BaseException) -> bool:
 def main(argv=None) -> int:
     """Run ``rollbot-oc`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status (see module doc)."""
     os.environ.setdefault("MPLBACKEND", "Agg")  # the command line only writes figures to files
+    for stream in (sys.stdout, sys.stderr):  # a path that is not UTF-8 is printed escaped, never a crash
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv[:argv.index("--")] if "--" in argv else "--debug" in argv
     args = None
     with _one_line_warnings():
         try:
             args = build_parser().parse_args(argv)
-            return args.run(args)
+            with interruptible(f"{PROG} {args.command}"):  # a Ctrl-C a solver swallows still interrupts
+                return args.run(args)
         except SystemExit as exc:  # --help and --version
             return exc.code if isinstance(exc.code, int) else EXIT_OK
         except KeyboardInterrupt:

@@ -150,6 +150,8 @@ def compiled(fun: ca.Function, flags: tuple[str, ...] = ("-O1",)) -> ca.Function
                 if loaded is not None:
                     return loaded
                 problem = problem or "the compiled library does not load"
+    except (FileExistsError, NotADirectoryError):
+        problem = f"cache folder {folder}: a file is in the way"
     except OSError as exc:
         problem = f"cache folder {folder}: {exc.strerror or exc}"
     warnings.warn(f"compiled code for {name} unavailable ({problem}); using the slower uncompiled Function",

@@ -22,7 +22,7 @@ import signal
 import threading
 from contextlib import contextmanager
 
-__all__ = ["ConfigError", "NumericalFailure", "NotConverged", "Interrupted", "interruptible"]
+__all__ = ["ConfigError", "NumericalFailure", "NotConverged", "Interrupted", "interruptible", "check_interrupted"]
 
 
 class ConfigError(ValueError):
@@ -74,16 +74,22 @@ class Interrupted(KeyboardInterrupt):
     """Ctrl-C during a computation that caught it (IPOPT reports it as a failed solve)."""
 
 
+_caught: list[list[int]] = []  # one record per active ``interruptible`` block (innermost last)
+
+
 @contextmanager
 def interruptible(what: str = "computation"):
     """Turn a Ctrl-C that a solver swallows into ``Interrupted``.
 
-    CasADi's solvers (IPOPT, the QP solvers) check for Ctrl-C themselves and
-    then return a failed status (``NonIpopt_Exception_Thrown``) instead of
-    raising.  Inside this block a Ctrl-C is recorded (and still stops the
-    solver); when the block ends, ``Interrupted`` is raised, so the interrupt
-    is never mistaken for a numerical failure.  Outside the main thread (where
-    signal handlers cannot be set) the block does nothing.
+    CasADi checks for Ctrl-C itself while it computes and then either returns
+    a failed status (IPOPT: ``NonIpopt_Exception_Thrown``) or raises a
+    ``RuntimeError``, so the interrupt looks like a numerical failure.  Inside
+    this block a Ctrl-C is recorded (and still stops the solver, or plain
+    Python code at once).  When the block ends, by any exception or normally,
+    a recorded Ctrl-C raises ``Interrupted``.  Code that catches solver errors
+    and carries on calls ``check_interrupted()`` right after each solver call,
+    so that it stops at once.  Outside the main thread (where signal handlers
+    cannot be set) the block does nothing.
 
     Examples
     --------
@@ -93,16 +99,35 @@ def interruptible(what: str = "computation"):
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    caught = []
+    caught: list[int] = []
 
     def handler(signum, frame):
         caught.append(signum)
-        raise KeyboardInterrupt  # makes the solver stop (it catches this) or stops plain Python code
+        raise KeyboardInterrupt  # stops plain Python code at once; a CasADi solver catches it and stops
 
     previous = signal.signal(signal.SIGINT, handler)
+    _caught.append(caught)
     try:
         yield
+    except KeyboardInterrupt:
+        raise
+    except Exception as exc:
+        if caught:  # the solver turned the Ctrl-C into an error
+            raise Interrupted(f"{what} interrupted") from exc
+        raise
     finally:
+        _caught.remove(caught)
         signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
     if caught:
+        raise Interrupted(f"{what} interrupted")
+
+
+def check_interrupted(what: str = "computation") -> None:
+    """Raise ``Interrupted`` if Ctrl-C was pressed inside the active ``interruptible`` blocks.
+
+    Call it right after a solver call whose failure is caught and tolerated
+    (a failed solve that falls back), so that a Ctrl-C the solver swallowed
+    stops the computation at once instead of counting as a failed solve.
+    """
+    if any(_caught):
         raise Interrupted(f"{what} interrupted")

@@ -27,7 +27,23 @@ import numpy as np
 from rollbot_oc.errors import ConfigError
 
 __all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "write_json", "save_npz", "versions",
-           "to_json", "json_ready", "output_folder", "OutputFolder", "file_mode"]
+           "to_json", "json_ready", "output_folder", "OutputFolder", "file_mode", "user_path"]
+
+
+def user_path(text: str | Path, what: str) -> Path:
+    """A path the user gave (an option or argument), as a Path.
+
+    Raises
+    ------
+    ConfigError
+        If it is empty or holds a NUL character (``what`` names it in the message).
+    """
+    text = str(text)
+    if not text.strip():
+        raise ConfigError(f"{what}: the path is empty")
+    if "\0" in text:
+        raise ConfigError(f"{what} {text!r}: a path cannot hold a NUL character")
+    return Path(text)
 
 
 def file_mode() -> int:
@@ -162,10 +178,7 @@ class OutputFolder:
 
     def __init__(self, path: str | Path, option: str = "--out"):
         self.option = option
-        text = str(path)
-        if not text.strip():
-            raise ConfigError(f"{option} = {text!r}: give a folder name")
-        self.path = Path(path)
+        self.path = user_path(path, option)
         if self.path.exists() and not self.path.is_dir():
             raise ConfigError(f"{option} {self.path}: exists and is not a folder")
         for parent in self.path.parents:

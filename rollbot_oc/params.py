@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from rollbot_oc.errors import ConfigError
-from rollbot_oc.outputs import atomic_write_text
+from rollbot_oc.outputs import atomic_write_text, user_path
 
 __all__ = ["RollbotParams", "PARAM_VECTOR_FIELDS", "load_params", "save_params", "read_toml"]
 
@@ -162,7 +162,11 @@ class RollbotParams:
         object.__setattr__(self, "_derived", derived)  # which defaults follow the others (not a field)
         self._validate_given()
         for name in derived:
-            object.__setattr__(self, name, _DERIVED_DEFAULTS[name](self))
+            try:
+                value = _DERIVED_DEFAULTS[name](self)
+            except OverflowError:
+                value = math.inf  # refused just below, naming the field
+            object.__setattr__(self, name, value)
         self._validate()
 
     def _check(self, name, ok, valid):
@@ -293,9 +297,7 @@ def read_toml(path: str | Path, what: str) -> dict:
         Naming the file: an empty path, a missing or unreadable file, a
         folder, a file larger than 1 MiB, text that is not UTF-8, or invalid TOML.
     """
-    if not str(path).strip():
-        raise ConfigError(f"{what} path is empty")
-    path = Path(path)
+    path = user_path(path, what)
     try:
         with open(path, "rb") as handle:
             if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):

@@ -101,13 +101,14 @@ def load_scenario(text: str, base=None):
     ConfigError
         If it is neither (the bundled scenarios are listed), or the file is bad.
     """
+    from rollbot_oc.outputs import user_path
     from rollbot_oc.problems import load_problem
 
-    path = Path(text)
-    if text.strip() and path.exists():
+    path = user_path(text, "problem")
+    if path.exists():
         return load_problem(path, base)
     stem = path.name[:-5] if path.name.endswith(".toml") else path.name
-    if text.strip() and path.parent in (Path("."), Path("problems")) and stem in bundled_names():
+    if path.parent in (Path("."), Path("problems")) and stem in bundled_names():
         return load_bundled(stem, base)
     raise ConfigError(f"problem {text!r}: no such file, and no bundled scenario of that name; bundled are "
                       f"{', '.join(bundled_names())} (see rollbot-oc problems)")

@@ -412,7 +412,7 @@ class SimulationResult:
             ``.npz``, truncated, keys missing), or its arrays do not fit together.
         """
         try:
-            with np.load(path, allow_pickle=False) as data:
+            with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as data:
                 arrays = {key: data[key] for key in data.files}  # read everything now: a truncated file fails here
         except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
             raise ConfigError(f"{path}: cannot read a saved run ({exc})") from None

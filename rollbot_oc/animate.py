@@ -14,6 +14,7 @@ import numpy as np
 from matplotlib import animation
 
 from rollbot_oc.dynamics import QUAT, THETA
+from rollbot_oc.errors import ConfigError
 from rollbot_oc.outputs import atomic_path
 from rollbot_oc.plots import CENTRE, ROBOT, SPEED, TARGET
 from rollbot_oc.rotations import quat_to_matrix_np
@@ -77,9 +78,9 @@ def animate_run(result, path, centres=None, targets=None, circle=None, title: st
     """
     path = Path(path)
     if path.suffix not in (".gif", ".mp4"):
-        raise ValueError(f"animation path {path}: use a .gif or .mp4 file")
+        raise ConfigError(f"animation path {path}: use a .gif or .mp4 file")
     if path.suffix == ".mp4" and not animation.writers.is_available("ffmpeg"):
-        raise ValueError("MP4 needs ffmpeg, which is not installed here; write a .gif instead")
+        raise ConfigError("MP4 needs ffmpeg, which is not installed here; write a .gif instead")
     t, s, params = result.t, result.position, result.params
     if speedup:
         frames = max(2, int(t[-1] / speedup * fps))

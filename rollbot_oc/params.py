@@ -34,8 +34,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
-import stat
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -220,6 +218,16 @@ class RollbotParams:
         """Names of the fields that hold their derived default (``k0``, ``max_torque``), not a given value."""
         return self._derived
 
+    def with_changes(self, **changes) -> "RollbotParams":
+        """A copy with some fields changed (SI units) in which derived defaults follow the new values.
+
+        ``k0`` and ``max_torque``, where they hold their derived default here
+        and are not in ``changes``, are derived again from the new values
+        (the rule of parameter and problem files); given values stay.
+        """
+        following = {name: None for name in self._derived if name not in changes}
+        return dataclasses.replace(self, **changes, **following)
+
     def replace(self, **changes) -> "RollbotParams":
         """A copy with some fields changed (SI units), validated again.
 
@@ -227,21 +235,14 @@ class RollbotParams:
         ``k0=None`` to recompute the paper's default from the new M and R.  A
         derived default whose value the change leaves as it was stays derived.
         """
-        following = {name: None for name in self._derived if name not in changes}
-        new = dataclasses.replace(self, **changes, **following)
-        moved = {name: getattr(self, name) for name in following if getattr(new, name) != getattr(self, name)}
-        if not moved:
-            return new
-        return dataclasses.replace(new, **moved, **{name: None for name in following if name not in moved})
+        new = self.with_changes(**changes)
+        moved = {name: getattr(self, name) for name in self._derived - set(changes)
+                 if getattr(new, name) != getattr(self, name)}
+        return new.with_changes(**moved) if moved else new
 
-    def to_file_dict(self, given_only: bool = False) -> dict[str, float]:
-        """The parameters under their TOML keys, in file units (degrees for ``_deg``).
-
-        With ``given_only``, derived defaults (see ``derived``) are left out, so
-        that building parameters from the result derives them again.
-        """
-        return {key: getattr(self, attr) / scale for key, (attr, scale) in _FILE_KEYS.items()
-                if not (given_only and attr in self._derived)}
+    def to_file_dict(self) -> dict[str, float]:
+        """The parameters under their TOML keys, in file units (degrees for ``_deg``)."""
+        return {key: getattr(self, attr) / scale for key, (attr, scale) in _FILE_KEYS.items()}
 
     @classmethod
     def from_file_dict(cls, data: dict, source: str = "parameters",
@@ -274,10 +275,8 @@ class RollbotParams:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
                 raise ConfigError(f"{source}: key {key} = {value!r} must be a finite number")
             kwargs[attr] = float(value) * scale
-        table = base.to_file_dict(given_only=True) if base is not None else {}
-        inherited = {attr: table[key] * scale for key, (attr, scale) in _FILE_KEYS.items() if key in table}
         try:
-            return cls(**{**inherited, **kwargs})
+            return (base or cls()).with_changes(**kwargs)
         except ConfigError as exc:
             raise ConfigError(f"{source}: {exc}") from None
 
@@ -299,9 +298,7 @@ def read_toml(path: str | Path, what: str) -> dict:
     """
     path = user_path(path, what)
     try:
-        with open(path, "rb") as handle:
-            if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
-                raise ConfigError(f"{what} {path} is not a regular file")
+        with open(path, "rb") as handle:  # a pipe works too (--params <(...)); the size bound keeps /dev/zero out
             raw = handle.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:
         raise ConfigError(f"{what} {path} does not exist") from None

@@ -446,6 +446,11 @@ class SimulationResult:
         finite = math.isfinite(dt) and dt > 0 and np.all(np.isfinite(t)) and np.all(np.isfinite(x))
         if not (shapes_ok and finite):
             raise ConfigError(f"{source}: not a saved run (arrays of inconsistent shapes or non-finite values)")
+        with np.errstate(over="ignore", invalid="ignore"):
+            unit = np.abs(np.linalg.norm(x[QUAT], axis=0) - 1.0).max() <= 1e-3  # loose: RK4 drifts a little
+        if not (unit and np.all(np.diff(t) > 0) and np.abs(x[POS]).max() <= 1e7):
+            raise ConfigError(f"{source}: not a saved run (times not increasing, quaternions not of unit norm or "
+                              "positions beyond 10^7 m)")
         return cls(params, dt, t, x, arrays["command"], arrays["speed_command"], arrays["diag"], events, step_times)
 
 

@@ -179,13 +179,17 @@ def test_4_truncated_or_odd_saved_runs(tmp_path, capsys):
     cases = {"truncated.npz": data[: len(data) // 2], "empty.npz": b"", "text.npz": b"hello",
              "head.npz": data[:100]}
     np.savez(tmp_path / "other.npz", t=np.arange(3.0))
-    arrays = dict(np.load(good))
-    arrays["x"] = arrays["x"][:, :2]
-    np.savez(tmp_path / "shapes.npz", **arrays)
+    crafted = {"shapes.npz": ("x", lambda x: x[:, :2]), "huge.npz": ("x", lambda x: 1e300 * x),
+               "backwards.npz": ("t", lambda t: t[::-1].copy()), "events.npz": ("event_kinds", lambda k: ["slide"]),
+               "params.npz": ("params_file", lambda p: np.array('{"R": -1}'))}
+    for name, (key, change) in crafted.items():
+        arrays = dict(np.load(good))
+        arrays[key] = change(arrays[key])
+        np.savez(tmp_path / name, **arrays)
     for name, content in cases.items():
         (tmp_path / name).write_bytes(content)
-    for name in list(cases) + ["other.npz", "shapes.npz"]:
-        with pytest.raises(ConfigError, match="saved run"):
+    for name in list(cases) + list(crafted) + ["other.npz"]:
+        with pytest.raises(ConfigError, match="saved run" if name != "params.npz" else "parameter R"):
             SimulationResult.load(tmp_path / name)
         status, _, err = cli_run(["plot", tmp_path / name, "--out", tmp_path / "figs"], capsys)
         assert status == 2 and name in one_error_line(err)
@@ -507,6 +511,7 @@ def test_14_set_values_stay_set():
     # a change that leaves a derived default where it was keeps it derived
     assert RollbotParams().replace(slope=0.01).derived == {"k0", "max_torque"}
     assert RollbotParams().replace(m=0.4).max_torque == RollbotParams().max_torque  # replace keeps values
+    assert RollbotParams().with_changes(m=0.4).max_torque == RollbotParams(m=0.4).max_torque  # the file rule
 
 
 # 15 ------------------------------------------------------------------------------------------------------------

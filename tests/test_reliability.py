@@ -101,6 +101,12 @@ def test_1_bad_output_folder_is_refused_before_computing(command, case, tmp_path
     assert option in line and str(out) in line
 
 
+def test_1_unwritable_output_folder(tmp_path, monkeypatch):
+    monkeypatch.setattr(os, "access", lambda path, mode: False)  # as a user without write permission sees it
+    with pytest.raises(ConfigError, match="--out .*not writable"):
+        OutputFolder(tmp_path / "out")
+
+
 def test_1_output_folder_is_created_with_its_parents(tmp_path):
     folder = OutputFolder(tmp_path / "a" / "b")
     assert folder.path.is_dir() and folder.file("x.json") == tmp_path / "a" / "b" / "x.json"

@@ -22,7 +22,6 @@ Every file a command writes is inside its output folder (``--out``,
 from __future__ import annotations
 
 import argparse
-import functools
 import math
 import os
 import sys
@@ -344,9 +343,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     debug = _Parser(add_help=False)  # --debug is also taken after the subcommand
     debug.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
-    sub.add_parser = functools.partial(sub.add_parser, parents=[debug])
 
-    p = sub.add_parser("openloop", help="the paper's open-loop experiment: constant driving speeds, "
+    def command(name: str, **kwargs) -> argparse.ArgumentParser:
+        return sub.add_parser(name, parents=[debug], **kwargs)
+
+    p = command("openloop", help="the paper's open-loop experiment: constant driving speeds, "
                        "measured revolving radius, rate and tilt")
     p.add_argument("--omega0", type=_finite, nargs="+", required=True, metavar="W",
                    help="driving speeds, rad/s, in (0, max_speed]")
@@ -362,7 +363,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print a JSON list of measurements")
     p.set_defaults(run=_cmd_openloop)
 
-    p = sub.add_parser("quasi", help="quasi-stable (steadily revolving) states at given driving speeds")
+    p = command("quasi", help="quasi-stable (steadily revolving) states at given driving speeds")
     p.add_argument("--omega0", type=_finite, nargs="+", required=True, metavar="W",
                    help="driving speeds, rad/s, in [0, max_speed]")
     _add_params(p)
@@ -372,7 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print a JSON list (SI units, radians)")
     p.set_defaults(run=_cmd_quasi)
 
-    p = sub.add_parser("stability", help="linearised stability (eigenvalues, lambda2, recovery time) of "
+    p = command("stability", help="linearised stability (eigenvalues, lambda2, recovery time) of "
                        "quasi-stable states")
     p.add_argument("--omega0", type=_finite, nargs="+", required=True, metavar="W",
                    help="driving speeds, rad/s, in [0, max_speed]")
@@ -382,7 +383,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print a JSON list (eigenvalues as [re, im], 1/s)")
     p.set_defaults(run=_cmd_stability)
 
-    p = sub.add_parser("run", help="run a scenario (file or bundled name) under a controller and print its metrics")
+    p = command("run", help="run a scenario (file or bundled name) under a controller and print its metrics")
     _add_scenario(p)
     p.add_argument("--controller", choices=("pid", "nmpc"), default="pid",
                    help="pid: the paper's quasi-stable baseline; nmpc: nonlinear MPC (default pid)")
@@ -390,24 +391,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the metrics as JSON (SI units)")
     p.set_defaults(run=_cmd_run)
 
-    p = sub.add_parser("compare", help="run the PID baseline and the NMPC on one problem and compare them")
+    p = command("compare", help="run the PID baseline and the NMPC on one problem and compare them")
     _add_scenario(p)
     p.add_argument("--out", metavar="DIR", help="write the table (Markdown, JSON), an overlay plot and both runs here")
     p.add_argument("--json", action="store_true", help="print the table rows as JSON instead of Markdown")
     p.set_defaults(run=_cmd_compare)
 
-    p = sub.add_parser("problems", help="list the bundled scenarios (name, kind, description)")
+    p = command("problems", help="list the bundled scenarios (name, kind, description)")
     p.add_argument("--json", action="store_true", help="print a JSON list of {name, kind, description}")
     p.set_defaults(run=_cmd_problems)
 
-    p = sub.add_parser("demo", help="the main job: quasi-stable figures, PID against NMPC on the N-shape, "
+    p = command("demo", help="the main job: quasi-stable figures, PID against NMPC on the N-shape, "
                        "an animation; writes a report folder")
     _add_params(p)
     p.add_argument("--out", metavar="DIR", default="out", help="report folder (default out/)")
     p.add_argument("--quick", action="store_true", help="fewer points and frames (about a minute less)")
     p.set_defaults(run=_cmd_demo)
 
-    p = sub.add_parser("plot", help="figures (and an animation) of a saved run (.npz from run/compare --out)")
+    p = command("plot", help="figures (and an animation) of a saved run (.npz from run/compare --out)")
     p.add_argument("run_file", metavar="RUN.npz", help="a saved run")
     p.add_argument("--out", metavar="DIR", default=".", help="where to write the PNG files (default: here)")
     p.add_argument("--animate", action="store_true", help="also write an animated GIF")

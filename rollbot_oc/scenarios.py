@@ -16,7 +16,8 @@ from pathlib import Path
 
 from rollbot_oc.errors import ConfigError
 
-__all__ = ["bundled_names", "bundled_text", "bundled_table", "list_bundled", "load_bundled", "load_scenario", "NAME_PATTERN"]
+__all__ = ["bundled_names", "bundled_text", "bundled_table", "list_bundled", "load_bundled", "load_scenario",
+           "NAME_PATTERN"]
 
 PACKAGE = "rollbot_oc.problems_data"
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{0,63}")  # a scenario name, also a file stem

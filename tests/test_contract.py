@@ -19,7 +19,6 @@ import contextlib
 import io
 import json
 import math
-import os
 import tempfile
 from pathlib import Path
 

@@ -7,8 +7,6 @@ file is written whole (temporary file, then rename).
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -16,6 +14,8 @@ import numpy as np
 from matplotlib import animation
 
 from rollbot_oc.dynamics import QUAT, THETA
+from rollbot_oc.errors import ConfigError
+from rollbot_oc.outputs import atomic_path
 from rollbot_oc.plots import CENTRE, ROBOT, SPEED, TARGET
 from rollbot_oc.rotations import quat_to_matrix_np
 
@@ -78,9 +78,9 @@ def animate_run(result, path, centres=None, targets=None, circle=None, title: st
     """
     path = Path(path)
     if path.suffix not in (".gif", ".mp4"):
-        raise ValueError(f"animation path {path}: use a .gif or .mp4 file")
+        raise ConfigError(f"animation path {path}: use a .gif or .mp4 file")
     if path.suffix == ".mp4" and not animation.writers.is_available("ffmpeg"):
-        raise ValueError("MP4 needs ffmpeg, which is not installed here; write a .gif instead")
+        raise ConfigError("MP4 needs ffmpeg, which is not installed here; write a .gif instead")
     t, s, params = result.t, result.position, result.params
     if speedup:
         frames = max(2, int(t[-1] / speedup * fps))
@@ -152,14 +152,9 @@ def animate_run(result, path, centres=None, targets=None, circle=None, title: st
     anim = animation.FuncAnimation(fig, draw, frames=index, blit=False)
     writer = animation.PillowWriter(fps=fps) if path.suffix == ".gif" else animation.FFMpegWriter(fps=fps)
     fig.set_dpi(80)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-    os.close(fd)
     try:
-        anim.save(tmp, writer=writer)
-        os.replace(tmp, path)
+        with atomic_path(path, mode=None) as tmp:
+            anim.save(tmp, writer=writer)
     finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
         plt.close(fig)
     return path

@@ -1,11 +1,22 @@
 """The ``rollbot-oc`` command line.
 
 Every subcommand that computes takes ``--params FILE`` (TOML, see
-``rollbot_oc.params``).  ``--json`` prints machine-readable JSON on stdout
-(SI units, radians).  A user mistake (bad argument, bad file, value out of
-range) prints one line ``rollbot-oc: error: ...`` on stderr and exits with
-status 2; a computation that fails (a solver that does not converge) exits
-with status 1.
+``rollbot_oc.params``).  ``--json`` prints strict JSON on stdout (SI units,
+radians, ``null`` for what is missing).  Exit status:
+
+* 0: success;
+* 1: a computation that did not converge or a run that did not complete
+  (``rollbot-oc: failed: ...`` on stderr; the JSON, when asked for, is still
+  printed);
+* 2: a user error (argument, file, value), one line ``rollbot-oc: error: ...``
+  naming the option or file, the value and the valid range, found before any
+  long computation;
+* 130: interrupted (Ctrl-C);
+* 3: an internal error (a bug), one line ``rollbot-oc: internal error: ...``;
+  ``--debug`` shows its traceback.
+
+Every file a command writes is inside its output folder (``--out``,
+``--plot``), which is checked and created before anything is computed.
 """
 
 from __future__ import annotations
@@ -14,22 +25,29 @@ import argparse
 import math
 import os
 import sys
-from pathlib import Path
+import traceback
+import warnings
+from contextlib import contextmanager
 
-from rollbot_oc.control.ocp import SolveFailed
-from rollbot_oc.outputs import to_json, write_json
+from rollbot_oc import __version__
+from rollbot_oc.errors import ConfigError, NumericalFailure, interruptible
+from rollbot_oc.outputs import output_folder, to_json, write_json
 from rollbot_oc.params import load_params
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_INTERNAL", "EXIT_INTERRUPTED"]
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+PROG = "rollbot-oc"
+MAX_SEED = 2**32 - 1
 
 
-class UsageError(Exception):
-    """A mistake in the command line or its files."""
+class UsageError(ConfigError):
+    """A mistake in the command line itself (argparse's complaints)."""
 
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, not the whole usage block
-        raise UsageError(f"{self.prog}: {message} (see --help)")
+        raise UsageError(f"{message} (see '{self.prog} --help')")
 
 
 def _finite(text: str) -> float:
@@ -42,6 +60,23 @@ def _finite(text: str) -> float:
     return value
 
 
+def _positive(text: str) -> float:
+    value = _finite(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is out of range: valid is > 0")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"{text!r} is out of range: valid is [0, {MAX_SEED}]")
+    return value
+
+
 def _add_params(p):
     p.add_argument("--params", metavar="FILE", help="TOML parameter file (keys in the README); "
                    "default: the paper's prototype")
@@ -49,104 +84,139 @@ def _add_params(p):
 
 def _add_scenario(p):
     """The options every scenario-running subcommand shares."""
-    p.add_argument("problem", metavar="PROBLEM.toml", help="scenario file (schema in the README)")
+    p.add_argument("problem", metavar="PROBLEM", help="scenario file (schema in the README) or the name of a "
+                   "bundled scenario (rollbot-oc problems)")
     _add_params(p)
-    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the sensor noise (default 0)")
-    p.add_argument("--duration", type=_finite, metavar="T", help="override the problem's duration, s")
+    p.add_argument("--seed", type=_seed, default=0, metavar="N", help=f"seed of the sensor noise, in [0, {MAX_SEED}] "
+                   "(default 0)")
+    p.add_argument("--duration", type=_finite, metavar="T", help="override the problem's duration, s, in [1, 3600]")
 
 
 def _params_with_slope(args):
     params = load_params(args.params)
     if getattr(args, "slope_deg", None) is not None:
-        params = params.replace(slope=math.radians(args.slope_deg))
+        try:
+            params = params.replace(slope=math.radians(args.slope_deg))
+        except ConfigError:
+            raise ConfigError(f"--slope-deg {args.slope_deg:g} is out of range: valid is [0, 30]") from None
     return params
 
 
+def _load_scenario(args):
+    """The problem of a scenario subcommand, with ``--duration`` applied and checked."""
+    from rollbot_oc.problems import check_duration
+    from rollbot_oc.scenarios import load_scenario
+
+    problem = load_scenario(args.problem, base=load_params(args.params))
+    if args.duration is not None:
+        problem = problem.with_duration(check_duration(args.duration, "--duration"))
+    return problem
+
+
+def _failed(message: str) -> int:
+    print(f"{PROG}: failed: {message}", file=sys.stderr)
+    return EXIT_FAILED
+
+
 def _cmd_openloop(args) -> int:
-    from rollbot_oc.experiments import open_loop_run
+    from rollbot_oc.experiments import OpenLoopMeasurement, check_open_loop, open_loop_run
     from rollbot_oc.plots import plot_top_view
+    from rollbot_oc.problems import check_duration
 
     params = _params_with_slope(args)
-    rows = []
+    if args.duration is not None:
+        check_duration(args.duration, "--duration")
+    for omega0 in args.omega0:  # every setting checked before the first run
+        check_open_loop(omega0, params, ramp_rate=args.ramp_rate, duration=args.duration)
+    out = output_folder(args.out)
+    rows, failures = [], []
     for omega0 in args.omega0:
-        measured, result = open_loop_run(omega0, params, duration=args.duration, ramp_rate=args.ramp_rate)
+        try:
+            measured, result = open_loop_run(omega0, params, duration=args.duration, ramp_rate=args.ramp_rate)
+        except NumericalFailure as exc:  # the robot left the no-slip model: a row of nulls, exit status 1
+            rows.append(OpenLoopMeasurement.failed_dict(omega0, str(exc)))
+            failures.append(str(exc))
+            continue
         rows.append(measured.to_dict())
-        if args.out:
-            out = Path(args.out)
-            plot_top_view(result, title=f"open loop, omega0 = {omega0:g} rad/s",
-                          path=out / f"openloop_{omega0:g}.png")
-    if args.out:
-        write_json(Path(args.out) / "openloop.json", {"params": params.to_file_dict(), "runs": rows})
+        if out:
+            plot_top_view(result, title=f"open loop, omega0 = {omega0:g} rad/s", path=out / f"openloop_{omega0:g}.png")
+    if out:
+        write_json(out / "openloop.json", {"params": params.to_file_dict(), "runs": rows})
     if args.json:
         print(to_json(rows))
     else:
         print(f"{'omega0':>8} {'R0 (m)':>9} {'Omega':>9} {'xi (deg)':>9} {'settled':>8}")
         for r in rows:
+            if r["R0"] is None:
+                print(f"{r['omega0']:8.3f} {'-':>9} {'-':>9} {'-':>9} {str(r['settled']):>8}")
+                continue
             print(f"{r['omega0']:8.3f} {r['R0']:9.4f} {r['Omega']:9.4f} {math.degrees(r['xi']):9.3f} "
                   f"{str(r['settled']):>8}")
-    return 0
+    return _failed("; ".join(failures)) if failures else EXIT_OK
 
 
-def _paper_figures(params, out: Path) -> list[Path]:
-    """Write the quasi-stable and eigenvalue figures for [0, max_speed] into ``out``."""
+def _paper_figures(params, out) -> list:
+    """Write the quasi-stable and eigenvalue figures for [0, max_speed] into the folder ``out``."""
     import numpy as np
 
     from rollbot_oc.plots import plot_eigenvalues, plot_quasi_stable
     from rollbot_oc.quasi_stable import quasi_stable_curve
-    from rollbot_oc.stability import stability_curve
+    from rollbot_oc.stability import stability_of_states
 
     omegas = np.linspace(0.0, params.max_speed, 200)
     curves = {branch: quasi_stable_curve(omegas, params, branch) for branch in ("slow", "fast")}
     paths = [out / "quasi_stable.png", out / "eigenvalues.png"]
     plot_quasi_stable(curves, path=paths[0])
-    plot_eigenvalues(stability_curve(omegas[1:], params), path=paths[1])
+    results = [r for r in stability_of_states(curves["slow"][1:]) if r is not None]
+    plot_eigenvalues(results, path=paths[1])
     return paths
 
 
-def _report_rows(args, params, rows, header: str, line) -> None:
-    """Write the paper's figures if asked (``--plot``), then print the rows as JSON or as a table."""
-    if args.plot:
-        _paper_figures(params, Path(args.plot))
+def _report_rows(args, params, plot, rows, header: str, line) -> int:
+    """Write the paper's figures into ``plot`` if given, print the rows as JSON or a table; status 1 if one failed."""
+    if plot:
+        _paper_figures(params, plot)
     if args.json:
         print(to_json(rows))
-        return
-    print(header)
-    for row in rows:
-        print(line(row))
+    else:
+        print(header)
+        for row in rows:
+            print(line(row) if row["converged"] else f"{row['omega0']:8.3f}  no quasi-stable state found")
+    failed = [r["omega0"] for r in rows if not r["converged"]]
+    if failed:
+        return _failed(f"no quasi-stable state on the {args.branch} branch at omega0 = "
+                       f"{', '.join(f'{w:g}' for w in failed)} rad/s (see 'residual')")
+    return EXIT_OK
 
 
 def _cmd_quasi(args) -> int:
     from rollbot_oc.quasi_stable import quasi_stable_curve
 
     params = load_params(args.params)
+    plot = output_folder(args.plot, "--plot")
     states = quasi_stable_curve(args.omega0, params, args.branch)
-    rows = [s.to_dict() for s in states]
-    _report_rows(args, params, rows,
-                 f"{'omega0':>8} {'Omega':>9} {'theta0(deg)':>11} {'xi(deg)':>8} {'R0 (m)':>9} {'branch':>6} converged",
-                 lambda r: f"{r['omega0']:8.3f} {r['Omega']:9.4f} {math.degrees(r['theta0']):11.3f} "
-                           f"{math.degrees(r['xi']):8.3f} {r['R0']:9.4f} {r['branch']:>6} {r['converged']}")
-    failed = [r["omega0"] for r in rows if not r["converged"]]
-    if failed:
-        print(f"rollbot-oc: no quasi-stable state on the {args.branch} branch at omega0 = "
-              f"{', '.join(f'{w:g}' for w in failed)} rad/s (see 'residual')", file=sys.stderr)
-        return 1
-    return 0
+    return _report_rows(
+        args, params, plot, [s.to_dict() for s in states],
+        f"{'omega0':>8} {'Omega':>9} {'theta0(deg)':>11} {'xi(deg)':>8} {'R0 (m)':>9} {'branch':>6} converged",
+        lambda r: f"{r['omega0']:8.3f} {r['Omega']:9.4f} {math.degrees(r['theta0']):11.3f} "
+                  f"{math.degrees(r['xi']):8.3f} {r['R0']:9.4f} {r['branch']:>6} {r['converged']}")
 
 
 def _cmd_stability(args) -> int:
-    from rollbot_oc.stability import stability_curve
+    from rollbot_oc.quasi_stable import quasi_stable_curve
+    from rollbot_oc.stability import stability_of_states, stability_record
 
     params = load_params(args.params)
-    results = stability_curve(args.omega0, params, args.branch)
-    rows = [r.to_dict() for r in results]
-    _report_rows(args, params, rows, f"{'omega0':>8} {'Re(l2)':>9} {'Im(l2)':>9} {'tau (s)':>8} stable",
-                 lambda r: f"{r['omega0']:8.3f} {r['lambda2'][0]:9.4f} {r['lambda2'][1]:9.4f} "
-                           f"{'inf' if r['tau'] is None else format(r['tau'], '.3f'):>8} {r['stable']}")
-    return 0
+    plot = output_folder(args.plot, "--plot")
+    states = quasi_stable_curve(args.omega0, params, args.branch)
+    rows = [stability_record(s, r) for s, r in zip(states, stability_of_states(states))]
+    return _report_rows(args, params, plot, rows, f"{'omega0':>8} {'Re(l2)':>9} {'Im(l2)':>9} {'tau (s)':>8} stable",
+                        lambda r: f"{r['omega0']:8.3f} {r['lambda2'][0]:9.4f} {r['lambda2'][1]:9.4f} "
+                                  f"{'inf' if r['tau'] is None else format(r['tau'], '.3f'):>8} {r['stable']}")
 
 
-def _write_run(run, out: Path) -> None:
-    """Trajectory (.npz), metrics (JSON) and the paper-style plots of a closed-loop run."""
+def _write_run(run, out) -> None:
+    """Trajectory (.npz), metrics (JSON) and the paper-style plots of a closed-loop run, in the folder ``out``."""
     from rollbot_oc.plots import plot_time_series, plot_top_view
 
     stem = f"{run.problem.name}_{run.controller}"
@@ -160,45 +230,55 @@ def _write_run(run, out: Path) -> None:
     plot_time_series(run.result, centres=run.centres, title=title, path=out / f"{stem}_time.png")
 
 
-def _cmd_run(args) -> int:
-    from rollbot_oc.problems import load_problem, run_open_loop, run_problem
+def _print_metrics(metrics: dict) -> None:
+    for key, value in metrics.items():
+        if key != "runs":
+            print(f"{key:>22}: {value}")
+    for row in metrics.get("runs", []):
+        if row["R0"] is None:
+            print(f"omega0 {row['omega0']:5.2f} rad/s: {row.get('error', 'not measured')}")
+            continue
+        print(f"omega0 {row['omega0']:5.2f} rad/s: R0 {row['R0']:.4f} m (theory {row['R0_theory']:.4f}, "
+              f"{100 * row['R0_error']:+.2f} %), settled {row['settled']}")
 
-    problem = load_problem(args.problem, base=load_params(args.params))
+
+def _cmd_run(args) -> int:
+    from rollbot_oc.problems import run_open_loop, run_problem
+
+    problem = _load_scenario(args)
+    out = output_folder(args.out)
     if problem.kind == "open_loop":
+        if args.duration is not None:
+            raise ConfigError(f"--duration does not apply to the open-loop problem {problem.name}: each speed runs "
+                              "until two revolutions are measured")
         metrics = run_open_loop(problem)
-        if args.out:
-            write_json(Path(args.out) / f"{problem.name}.json", metrics)
+        if out:
+            write_json(out / f"{problem.name}.json", metrics)
     else:
-        run = run_problem(problem, args.controller, seed=args.seed, duration=args.duration)
+        run = run_problem(problem, args.controller, seed=args.seed)
         metrics = run.metrics
-        if args.out:
-            _write_run(run, Path(args.out))
+        if out:
+            _write_run(run, out)
     if args.json:
         print(to_json(metrics))
     else:
-        for key, value in metrics.items():
-            if key != "runs":
-                print(f"{key:>22}: {value}")
-        for row in metrics.get("runs", []):
-            print(f"omega0 {row['omega0']:5.2f} rad/s: R0 {row['R0']:.4f} m (theory {row['R0_theory']:.4f}, "
-                  f"{100 * row['R0_error']:+.2f} %), settled {row['settled']}")
-    return 0 if metrics.get("completed") else 1
+        _print_metrics(metrics)
+    return EXIT_OK if metrics.get("completed") else _failed(f"{problem.name}: the run did not complete")
 
 
 def _cmd_compare(args) -> int:
+    from rollbot_oc.outputs import atomic_write_text
     from rollbot_oc.plots import plot_comparison
-    from rollbot_oc.problems import compare, comparison_row, comparison_table, load_problem
+    from rollbot_oc.problems import compare, comparison_row, comparison_table
 
-    problem = load_problem(args.problem, base=load_params(args.params))
+    problem = _load_scenario(args)
     if problem.kind == "open_loop":
-        raise ValueError(f"{args.problem}: an open-loop problem has no controller to compare")
-    runs = compare(problem, seed=args.seed, duration=args.duration)
+        raise ConfigError(f"{args.problem}: an open-loop problem has no controller to compare")
+    out = output_folder(args.out)
+    runs = compare(problem, seed=args.seed)
     table = comparison_table(runs)
     rows = [comparison_row(run) for run in runs]
-    if args.out:
-        out = Path(args.out)
-        from rollbot_oc.outputs import atomic_write_text
-
+    if out:
         atomic_write_text(out / f"{problem.name}_comparison.md", f"# {problem.name}: PID against NMPC\n\n{table}\n")
         write_json(out / f"{problem.name}_comparison.json", {"problem": problem.name, "seed": args.seed,
                                                              "rows": rows, "metrics": [r.metrics for r in runs]})
@@ -206,56 +286,84 @@ def _cmd_compare(args) -> int:
         for run in runs:
             _write_run(run, out)
     print(to_json(rows) if args.json else table)
-    return 0 if all(r["completed"] for r in rows) else 1
+    incomplete = [r["controller"] for r in rows if not r["completed"]]
+    return _failed(f"{problem.name}: not completed by {', '.join(incomplete)}") if incomplete else EXIT_OK
+
+
+def _cmd_problems(args) -> int:
+    from rollbot_oc.scenarios import list_bundled
+
+    rows = list_bundled()
+    if args.json:
+        print(to_json(rows))
+        return EXIT_OK
+    width = max(len(r["name"]) for r in rows)
+    for r in rows:
+        print(f"{r['name']:<{width}}  {r['kind']:<9}  {r['description']}")
+    return EXIT_OK
 
 
 def _cmd_demo(args) -> int:
     from rollbot_oc.report import make_report
 
-    make_report(args.out, load_params(args.params), quick=args.quick)
-    return 0
+    params = load_params(args.params)
+    make_report(output_folder(args.out).path, params, quick=args.quick)
+    return EXIT_OK
 
 
 def _cmd_plot(args) -> int:
+    from pathlib import Path
+
     from rollbot_oc.animate import animate_run
     from rollbot_oc.plots import plot_energy_and_contact, plot_time_series, plot_top_view
     from rollbot_oc.simulate import SimulationResult
 
     run = SimulationResult.load(args.run_file)
-    out = Path(args.out)
-    stem = Path(args.run_file).stem
-    written = [plot_top_view(run, title=stem, path=out / f"{stem}_top.png") and out / f"{stem}_top.png",
-               plot_time_series(run, title=stem, path=out / f"{stem}_time.png") and out / f"{stem}_time.png",
-               plot_energy_and_contact(run, title=stem, path=out / f"{stem}_energy.png") and out / f"{stem}_energy.png"]
+    out = output_folder(args.out)
+    stem = Path(args.run_file).stem or "run"
+    written = [out / f"{stem}_top.png", out / f"{stem}_time.png", out / f"{stem}_energy.png"]
+    for plot, path in zip((plot_top_view, plot_time_series, plot_energy_and_contact), written):
+        plot(run, title=stem, path=path)
     if args.animate:
         written.append(animate_run(run, out / f"{stem}.gif", title=stem))
     for path in written:
         print(path)
-    return 0
+    return EXIT_OK
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``rollbot-oc`` (subcommands and their options)."""
-    parser = _Parser(prog="rollbot-oc", description="Model, analyse and control Rollbot, the spherical robot "
-                     "driven by a single motor. SI units and radians unless an option says otherwise.")
+    parser = _Parser(prog=PROG, description="Model, analyse and control Rollbot, the spherical robot "
+                     "driven by a single motor. SI units and radians unless an option says otherwise. Exit status: "
+                     "0 success, 1 did not converge or complete, 2 bad argument or file, 3 internal error, "
+                     "130 interrupted.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an internal error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
+    debug = _Parser(add_help=False)  # --debug is also taken after the subcommand
+    debug.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
 
-    p = sub.add_parser("openloop", help="the paper's open-loop experiment: constant driving speeds, "
+    def command(name: str, **kwargs) -> argparse.ArgumentParser:
+        return sub.add_parser(name, parents=[debug], **kwargs)
+
+    p = command("openloop", help="the paper's open-loop experiment: constant driving speeds, "
                        "measured revolving radius, rate and tilt")
     p.add_argument("--omega0", type=_finite, nargs="+", required=True, metavar="W",
                    help="driving speeds, rad/s, in (0, max_speed]")
     _add_params(p)
-    p.add_argument("--slope-deg", type=_finite, metavar="D", help="floor slope, degrees (overrides the file)")
+    p.add_argument("--slope-deg", type=_finite, metavar="D", help="floor slope, degrees, in [0, 30] "
+                   "(overrides the file)")
     p.add_argument("--duration", type=_finite, metavar="T",
-                   help="run length, s (default: ramp, 40 s settling, then at least two revolutions)")
-    p.add_argument("--ramp-rate", type=_finite, default=0.5, metavar="A",
-                   help="driving-speed ramp from rest, rad/s^2 (default 0.5)")
+                   help="run length, s, in [1, 3600] and beyond the ramp and 45 s of settling "
+                        "(default: ramp, 40 s settling, then at least two revolutions)")
+    p.add_argument("--ramp-rate", type=_positive, default=0.5, metavar="A",
+                   help="driving-speed ramp from rest, rad/s^2, > 0 (default 0.5)")
     p.add_argument("--out", metavar="DIR", help="write top-view plots (PNG) and openloop.json here")
     p.add_argument("--json", action="store_true", help="print a JSON list of measurements")
     p.set_defaults(run=_cmd_openloop)
 
-    p = sub.add_parser("quasi", help="quasi-stable (steadily revolving) states at given driving speeds")
+    p = command("quasi", help="quasi-stable (steadily revolving) states at given driving speeds")
     p.add_argument("--omega0", type=_finite, nargs="+", required=True, metavar="W",
                    help="driving speeds, rad/s, in [0, max_speed]")
     _add_params(p)
@@ -265,7 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print a JSON list (SI units, radians)")
     p.set_defaults(run=_cmd_quasi)
 
-    p = sub.add_parser("stability", help="linearised stability (eigenvalues, lambda2, recovery time) of "
+    p = command("stability", help="linearised stability (eigenvalues, lambda2, recovery time) of "
                        "quasi-stable states")
     p.add_argument("--omega0", type=_finite, nargs="+", required=True, metavar="W",
                    help="driving speeds, rad/s, in [0, max_speed]")
@@ -275,7 +383,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print a JSON list (eigenvalues as [re, im], 1/s)")
     p.set_defaults(run=_cmd_stability)
 
-    p = sub.add_parser("run", help="run a scenario file (problems/*.toml) under a controller and print its metrics")
+    p = command("run", help="run a scenario (file or bundled name) under a controller and print its metrics")
     _add_scenario(p)
     p.add_argument("--controller", choices=("pid", "nmpc"), default="pid",
                    help="pid: the paper's quasi-stable baseline; nmpc: nonlinear MPC (default pid)")
@@ -283,20 +391,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the metrics as JSON (SI units)")
     p.set_defaults(run=_cmd_run)
 
-    p = sub.add_parser("compare", help="run the PID baseline and the NMPC on one problem and compare them")
+    p = command("compare", help="run the PID baseline and the NMPC on one problem and compare them")
     _add_scenario(p)
     p.add_argument("--out", metavar="DIR", help="write the table (Markdown, JSON), an overlay plot and both runs here")
     p.add_argument("--json", action="store_true", help="print the table rows as JSON instead of Markdown")
     p.set_defaults(run=_cmd_compare)
 
-    p = sub.add_parser("demo", help="the main job: quasi-stable figures, PID against NMPC on the N-shape, "
+    p = command("problems", help="list the bundled scenarios (name, kind, description)")
+    p.add_argument("--json", action="store_true", help="print a JSON list of {name, kind, description}")
+    p.set_defaults(run=_cmd_problems)
+
+    p = command("demo", help="the main job: quasi-stable figures, PID against NMPC on the N-shape, "
                        "an animation; writes a report folder")
     _add_params(p)
     p.add_argument("--out", metavar="DIR", default="out", help="report folder (default out/)")
     p.add_argument("--quick", action="store_true", help="fewer points and frames (about a minute less)")
     p.set_defaults(run=_cmd_demo)
 
-    p = sub.add_parser("plot", help="figures (and an animation) of a saved run (.npz from run/compare --out)")
+    p = command("plot", help="figures (and an animation) of a saved run (.npz from run/compare --out)")
     p.add_argument("run_file", metavar="RUN.npz", help="a saved run")
     p.add_argument("--out", metavar="DIR", default=".", help="where to write the PNG files (default: here)")
     p.add_argument("--animate", action="store_true", help="also write an animated GIF")
@@ -304,24 +416,65 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@contextmanager
+def _one_line_warnings():
+    """Show warnings (as filtered by Python: each once per place) as ``rollbot-oc: warning: ...`` lines on stderr."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = " ".join(str(message).split())
+        print(f"{PROG}: warning: {text}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= 2000 else text[:2000] + " ..."
+
+
+def _is_failure(exc: BaseException) -> bool:
+    """A numerical failure: ``NumericalFailure``, or the OCP's ``SolveFailed`` until it derives from it."""
+    ocp = sys.modules.get("rollbot_oc.control.ocp")
+    return isinstance(exc, NumericalFailure) or (ocp is not None and isinstance(exc, getattr(ocp, "SolveFailed", ())))
+
+
 def main(argv=None) -> int:
-    """Run ``rollbot-oc`` with ``argv``; returns the exit status."""
+    """Run ``rollbot-oc`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status (see module doc)."""
     os.environ.setdefault("MPLBACKEND", "Agg")  # the command line only writes figures to files
-    try:
-        args = build_parser().parse_args(argv)
-        return args.run(args)
-    except UsageError as exc:
-        print(f"rollbot-oc: error: {exc}", file=sys.stderr)
-        return 2
-    except ValueError as exc:
-        print(f"rollbot-oc: error: {exc}", file=sys.stderr)
-        return 2
-    except SolveFailed as exc:  # a computation that did not converge: reported, not a crash
-        print(f"rollbot-oc: failed: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("rollbot-oc: interrupted", file=sys.stderr)
-        return 130
+    for stream in (sys.stdout, sys.stderr):  # a path that is not UTF-8 is printed escaped, never a crash
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv[:argv.index("--")] if "--" in argv else "--debug" in argv
+    args = None
+    with _one_line_warnings():
+        try:
+            args = build_parser().parse_args(argv)
+            with interruptible(f"{PROG} {args.command}"):  # a Ctrl-C a solver swallows still interrupts
+                return args.run(args)
+        except SystemExit as exc:  # --help and --version
+            return exc.code if isinstance(exc.code, int) else EXIT_OK
+        except KeyboardInterrupt:
+            print(f"{PROG}: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        except ConfigError as exc:
+            print(f"{PROG}: error: {_one_line(exc)}", file=sys.stderr)
+            return EXIT_USAGE
+        except OSError as exc:  # a file that cannot be read or written while working (disk full, removed folder)
+            where = f"{exc.filename}: " if exc.filename else ""
+            print(f"{PROG}: error: {where}{exc.strerror or _one_line(exc)}", file=sys.stderr)
+            return EXIT_USAGE
+        except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback unless --debug
+            if not _is_failure(exc):
+                if debug:
+                    traceback.print_exc()
+                print(f"{PROG}: internal error: {type(exc).__name__}: {_one_line(exc)}"
+                      + ("" if debug else " (run with --debug for the traceback)"), file=sys.stderr)
+                return EXIT_INTERNAL
+            if args is not None and getattr(args, "json", False):  # the JSON contract holds on failure too
+                print(to_json({"completed": False, "error": _one_line(exc), "status": getattr(exc, "status", None)}))
+            return _failed(_one_line(exc))
 
 
 if __name__ == "__main__":

@@ -5,40 +5,110 @@ generated as C and compiled runs about ten times faster (the NMPC's interval
 linearisation: 0.55 ms against 4.9 ms for 30 intervals).  Compiling takes a
 few seconds, so the shared library is cached on disk under a name derived
 from the generated code (so a changed model compiles anew), in
-``$ROLLBOT_OC_CACHE`` or ``~/.cache/rollbot_oc``.  Where no C compiler is
-found, ``compiled`` returns the Function unchanged: the toolkit runs
-everywhere, only slower.
+``$ROLLBOT_OC_CACHE`` or ``~/.cache/rollbot_oc``.
+
+The cache is safe to share and hard to break:
+
+* a library is written whole (temporary file, then rename) and is followed
+  by a checksum file; only a library whose checksum matches is loaded, and
+  one that fails to match or to load is rebuilt;
+* processes compiling the same Function into one cache take turns (a file
+  lock beside the library), so the work is done once;
+* where no C compiler is found (``$CC``, ``gcc``, ``clang``, ``cc``), the
+  compiler fails, or the cache folder cannot be used, ``compiled`` warns in
+  one line and returns the Function unchanged: the toolkit runs everywhere,
+  only slower.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import shutil
 import subprocess
 import tempfile
+import warnings
 from pathlib import Path
 
 import casadi as ca
 
-__all__ = ["compiler", "compiled", "cache_dir"]
+from rollbot_oc.outputs import atomic_write_bytes
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: no lock (the writes stay atomic)
+    fcntl = None
+
+__all__ = ["compiler", "compiled", "cache_dir", "CompiledCodeWarning"]
+
+COMPILE_TIMEOUT = 300.0  # s
+
+
+class CompiledCodeWarning(UserWarning):
+    """The compiled code could not be built or loaded; the (slower) uncompiled Function is used."""
 
 
 def compiler() -> str | None:
-    """Path of the C compiler (``$CC``, else ``gcc``, else ``cc``), or None if there is none."""
-    for name in (os.environ.get("CC"), "gcc", "cc"):
+    """Path of the C compiler (``$CC``, else ``gcc``, ``clang`` or ``cc``), or None if there is none."""
+    for name in (os.environ.get("CC"), "gcc", "clang", "cc"):
         if name and shutil.which(name):
             return shutil.which(name)
     return None
 
 
 def cache_dir() -> Path:
-    """Folder of the compiled libraries."""
-    return Path(os.environ.get("ROLLBOT_OC_CACHE", Path.home() / ".cache" / "rollbot_oc"))
+    """Folder of the compiled libraries (``$ROLLBOT_OC_CACHE`` or ``~/.cache/rollbot_oc``)."""
+    return Path(os.environ.get("ROLLBOT_OC_CACHE") or Path.home() / ".cache" / "rollbot_oc")
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _load(name: str, target: Path) -> ca.Function | None:
+    """The library at ``target`` if its checksum file matches and it loads, else None."""
+    check = target.with_name(target.name + ".sha256")
+    try:
+        if not (target.is_file() and check.read_text().strip() == _digest(target)):
+            return None
+        return ca.external(name, str(target))
+    except (OSError, RuntimeError):
+        return None
+
+
+@contextlib.contextmanager
+def _locked(lock: Path):
+    """Hold an exclusive lock on the file ``lock`` (created) while the block runs."""
+    with open(lock, "a") as handle:
+        if fcntl is not None:
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            if fcntl is not None:
+                fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _build(cc: str, source: Path, target: Path, flags: tuple[str, ...]) -> str | None:
+    """Compile ``source`` into ``target`` with its checksum file; returns the compiler's complaint, or None."""
+    partial = source.with_suffix(".so")
+    try:
+        result = subprocess.run([cc, "-shared", "-fPIC", *flags, str(source), "-o", str(partial), "-lm"],
+                                capture_output=True, text=True, timeout=COMPILE_TIMEOUT)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return str(exc)
+    if result.returncode != 0 or not partial.is_file():
+        lines = (result.stderr or result.stdout).strip().splitlines()
+        return f"{Path(cc).name} exited with status {result.returncode}" + (f": {lines[0]}" if lines else "")
+    data = partial.read_bytes()
+    atomic_write_bytes(target, data)  # the library, whole ...
+    atomic_write_bytes(target.with_name(target.name + ".sha256"), hashlib.sha256(data).hexdigest().encode())
+    return None  # ... then its checksum: a library without a matching checksum is never loaded
 
 
 def compiled(fun: ca.Function, flags: tuple[str, ...] = ("-O1",)) -> ca.Function:
-    """``fun`` as a compiled C library (built once and cached), or ``fun`` itself without a C compiler.
+    """``fun`` as a compiled C library (built once and cached), or ``fun`` itself if that cannot be done.
 
     Parameters
     ----------
@@ -47,31 +117,43 @@ def compiled(fun: ca.Function, flags: tuple[str, ...] = ("-O1",)) -> ca.Function
     flags : tuple of str
         Compiler flags.
 
-    Raises
-    ------
-    RuntimeError
-        If the compiler is there but fails (its message is included).
+    Returns
+    -------
+    casadi.Function
+        The compiled Function, or ``fun`` unchanged (with a one-line
+        ``CompiledCodeWarning``) when there is no compiler, it fails, or the
+        cache folder cannot be created or written.
     """
     cc = compiler()
     if cc is None:
         return fun
-    with tempfile.TemporaryDirectory() as tmp:
-        source = Path(tmp) / f"{fun.name()}.c"
-        gen = ca.CodeGenerator(source.name, {"with_header": False})
-        gen.add(fun)
-        gen.generate(tmp + os.sep)
-        text = source.read_text()
-        key = hashlib.sha1((text + " ".join(flags) + ca.__version__).encode()).hexdigest()[:16]
-        target = cache_dir() / f"{fun.name()}_{key}.so"
-        if not target.exists():
-            target.parent.mkdir(parents=True, exist_ok=True)
-            partial = Path(tmp) / target.name
-            result = subprocess.run([cc, "-shared", "-fPIC", *flags, str(source), "-o", str(partial), "-lm"],
-                                    capture_output=True, text=True)
-            if result.returncode != 0:
-                raise RuntimeError(f"compiling {fun.name()} failed: {result.stderr.strip()[:2000]}")
-            # whole files only: copy beside the target, then rename
-            staged = target.with_suffix(f".{os.getpid()}.tmp")
-            shutil.copyfile(partial, staged)
-            os.replace(staged, target)
-    return ca.external(fun.name(), str(target))
+    name = fun.name()
+    folder = cache_dir()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory() as tmp:
+            source = Path(tmp) / f"{name}.c"
+            gen = ca.CodeGenerator(source.name, {"with_header": False})
+            gen.add(fun)
+            gen.generate(tmp + os.sep)
+            key = hashlib.sha1((source.read_text() + " ".join(flags) + ca.__version__).encode()).hexdigest()[:16]
+            target = folder / f"{name}_{key}.so"
+            loaded = _load(name, target)  # the common case: built before, no lock needed
+            if loaded is not None:
+                return loaded
+            with _locked(folder / f"{name}_{key}.lock"):
+                loaded = _load(name, target)  # another process may have built it while we waited
+                if loaded is not None:
+                    return loaded
+                problem = _build(cc, source, target, flags)
+                loaded = None if problem else _load(name, target)
+                if loaded is not None:
+                    return loaded
+                problem = problem or "the compiled library does not load"
+    except (FileExistsError, NotADirectoryError):
+        problem = f"cache folder {folder}: a file is in the way"
+    except OSError as exc:
+        problem = f"cache folder {folder}: {exc.strerror or exc}"
+    warnings.warn(f"compiled code for {name} unavailable ({problem}); using the slower uncompiled Function",
+                  CompiledCodeWarning, stacklevel=2)
+    return fun

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rollbot_oc.errors import ConfigError
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.progress import progress
 from rollbot_oc.quasi_stable import quasi_stable_curve
@@ -75,15 +76,13 @@ def sweep(base: RollbotParams, field: str, values, speeds: int = 30, show_progre
 
     Raises
     ------
-    ValueError
+    ConfigError
         If ``field`` is not one of ``SWEEPABLE`` or a value is invalid (the parameter check names it).
     """
     if field not in SWEEPABLE:
-        raise ValueError(f"sweep: field = {field!r}; valid are {', '.join(SWEEPABLE)}")
+        raise ConfigError(f"sweep: field = {field!r}; valid are {', '.join(SWEEPABLE)}")
     points = []
     for value in progress(values, f"sweeping {field}", enabled=show_progress):
-        changes = {field: float(value)}
-        if field in ("M_s", "R") and base.k0 == RollbotParams(M_s=base.M_s, R=base.R).k0:
-            changes["k0"] = None  # keep the paper's k0 = 0.4 1/s M R^2 rule
-        points.append(design_point(base.replace(**changes), speeds))
+        # derived defaults follow (the paper's k0 = 0.4 1/s M R^2 and M_max = r0 m g) unless base sets them
+        points.append(design_point(base.with_changes(**{field: float(value)}), speeds))
     return points

@@ -12,15 +12,17 @@ the tests and of ``quasi_stable``.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
 from rollbot_oc.dynamics import rest_state
+from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.simulate import SimulationResult, simulate
 
-__all__ = ["fit_circle", "CircleFit", "OpenLoopMeasurement", "open_loop_run", "open_loop_experiment", "damped_modes"]
+__all__ = ["fit_circle", "CircleFit", "OpenLoopMeasurement", "open_loop_run", "open_loop_experiment", "damped_modes",
+           "check_open_loop"]
 
 
 @dataclass(frozen=True)
@@ -99,6 +101,12 @@ class OpenLoopMeasurement:
         """The measurement as JSON-ready numbers."""
         return asdict(self)
 
+    @classmethod
+    def failed_dict(cls, omega0: float, reason: str) -> dict:
+        """The JSON record of a run that could not be measured: nulls, ``settled`` False and the ``error``."""
+        record = dict.fromkeys(f.name for f in fields(cls))
+        return {**record, "omega0": float(omega0), "settled": False, "error": reason}
+
 
 def _measure(result: SimulationResult, start: int, omega0: float) -> OpenLoopMeasurement:
     t, s = result.t[start:], result.position[:, start:]
@@ -139,17 +147,17 @@ def open_loop_run(omega0: float, params: RollbotParams | None = None, *, ramp_ra
     Returns
     -------
     (OpenLoopMeasurement, SimulationResult)
+
+    Raises
+    ------
+    ConfigError
+        On settings out of range (see ``check_open_loop``).
+    NumericalFailure
+        If the robot leaves the no-slip model (loses contact or slides); its
+        ``status`` is the event and its ``result`` the run up to it.
     """
     params = params or RollbotParams()
-    if not (math.isfinite(omega0) and 0 < omega0 <= params.max_speed):
-        raise ValueError(f"open loop: omega0 = {omega0!r} rad/s is out of range: valid is (0, {params.max_speed:.4g}]")
-    if not (math.isfinite(ramp_rate) and ramp_rate > 0):
-        raise ValueError(f"open loop: ramp_rate = {ramp_rate!r} must be > 0 rad/s^2")
-    ramp_end = omega0 / ramp_rate
-    lead = ramp_end + settle
-    if duration is not None and not (math.isfinite(duration) and duration > lead + 5.0):
-        raise ValueError(f"open loop: duration = {duration!r} s is too short: it must exceed the ramp and "
-                         f"settling time {lead:.1f} s by 5 s at least")
+    lead = check_open_loop(omega0, params, ramp_rate=ramp_rate, settle=settle, duration=duration)
     profile = lambda t: min(omega0, ramp_rate * t)  # noqa: E731
     first = duration if duration is not None else lead + 20.0
     result = simulate(rest_state(params), first, params=params, speed=profile, dt=dt)
@@ -162,9 +170,32 @@ def open_loop_run(omega0: float, params: RollbotParams | None = None, *, ramp_ra
             more = simulate(result.x[:, -1], needed, params=params, speed=omega0, dt=dt)
             result = _concatenate(result, more)
     if not result.completed:
-        raise ValueError(f"open loop at omega0 = {omega0} rad/s: the robot left the no-slip model "
-                         f"({result.events[0].kind} at t = {result.events[0].time:.2f} s)")
+        event = result.events[0]
+        raise NumericalFailure(f"open loop at omega0 = {omega0} rad/s: the robot left the no-slip model "
+                               f"({event.kind} at t = {event.time:.2f} s)", event.kind, result)
     return _measure(result, start, omega0), result
+
+
+def check_open_loop(omega0: float, params: RollbotParams, *, ramp_rate: float = 0.5, settle: float = 40.0,
+                    duration: float | None = None) -> float:
+    """Check the settings of ``open_loop_run`` before running it; returns the ramp and settling time, s.
+
+    Raises
+    ------
+    ConfigError
+        If ``omega0`` is not in (0, max_speed] rad/s, ``ramp_rate`` is not
+        > 0 rad/s^2, or ``duration`` does not exceed the ramp and settling
+        time by 5 s.
+    """
+    if not (math.isfinite(omega0) and 0 < omega0 <= params.max_speed):
+        raise ConfigError(f"open loop: omega0 = {omega0!r} rad/s is out of range: valid is (0, {params.max_speed:.4g}]")
+    if not (math.isfinite(ramp_rate) and ramp_rate > 0):
+        raise ConfigError(f"open loop: ramp_rate = {ramp_rate!r} must be > 0 rad/s^2")
+    lead = omega0 / ramp_rate + settle
+    if duration is not None and not (math.isfinite(duration) and duration > lead + 5.0):
+        raise ConfigError(f"open loop: duration = {duration!r} s is too short: it must exceed the ramp and "
+                          f"settling time {lead:.1f} s by 5 s at least")
+    return lead
 
 
 def _concatenate(a: SimulationResult, b: SimulationResult) -> SimulationResult:

@@ -13,7 +13,8 @@ TOML schema (every key optional; a missing key keeps its default)::
     phi_deg       = 45.0    # angle between the motor axis and the pendulum arm, deg
     r0            = 0.093   # distance from shell centre to pendulum mass, m
     m             = 0.306   # pendulum mass, kg
-    k0            = ...     # rotational damping, N m s; default 0.4 1/s * M * R^2
+    k0            = ...     # rotational damping, N m s; default 0.4 1/s * M * R^2 (0 is allowed for
+                            # simulation and optimal control; the quasi-stable analysis needs k0 > 0)
     g             = 9.81    # gravity, m/s^2
     mu            = 0.5     # friction coefficient between shell and floor
     max_torque    = ...     # motor torque limit, N m; default r0 * m * g
@@ -21,6 +22,12 @@ TOML schema (every key optional; a missing key keeps its default)::
     max_accel     = 30.0    # motor acceleration limit, rad/s^2
     slope_deg     = 0.0     # floor inclination, deg
     slope_dir_deg = 0.0     # azimuth of the downhill direction in the floor frame, deg
+
+Derived defaults: ``k0`` and ``max_torque`` follow the values they derive
+from (``M_s``, ``m_b``, ``R``; ``r0``, ``m``, ``g``) unless they are set
+explicitly.  The same rule holds for a parameter file (``--params``) and for
+a problem file's ``[params]`` table on top of its base robot
+(``RollbotParams.from_file_dict``).
 """
 
 from __future__ import annotations
@@ -33,7 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rollbot_oc.outputs import atomic_write_text
+from rollbot_oc.errors import ConfigError
+from rollbot_oc.outputs import atomic_write_text, user_path
 
 __all__ = ["RollbotParams", "PARAM_VECTOR_FIELDS", "PARAM_INDEX", "NP", "TILT", "ParamView", "load_params",
            "save_params", "read_toml"]
@@ -96,6 +104,14 @@ _FILE_KEYS = {
 }
 
 _K0_RATE = 0.4  # 1/s, the paper's k0 = (0.4 1/s) M R^2
+
+# Fields whose default derives from others: the paper's k0 = (0.4 1/s) M R^2 and M_max = r0 m g.
+_DERIVED_DEFAULTS = {
+    "k0": lambda p: _K0_RATE * (p.M_s + p.m_b) * p.R**2,
+    "max_torque": lambda p: p.r0 * p.m * p.g,
+}
+
+MAX_FILE_BYTES = 1 << 20  # a parameter or problem file is small text; refuse anything bigger
 
 
 @dataclass(frozen=True)
@@ -164,27 +180,41 @@ class RollbotParams:
     def __post_init__(self):
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if value is None and f.name in ("k0", "max_torque"):
+            if value is None and f.name in _DERIVED_DEFAULTS:
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-                raise ValueError(f"parameter {f.name}: expected a number, got {value!r}")
+                raise ConfigError(f"parameter {f.name}: expected a number, got {value!r}")
             if not math.isfinite(value):
-                raise ValueError(f"parameter {f.name}: {value!r} is not finite")
+                raise ConfigError(f"parameter {f.name}: {value!r} is not finite")
             object.__setattr__(self, f.name, float(value))
-        if self.k0 is None:
-            object.__setattr__(self, "k0", _K0_RATE * (self.M_s + self.m_b) * self.R**2)
-        if self.max_torque is None:
-            object.__setattr__(self, "max_torque", self.r0 * self.m * self.g)
+        derived = frozenset(name for name in _DERIVED_DEFAULTS if getattr(self, name) is None)
+        object.__setattr__(self, "_derived", derived)  # which defaults follow the others (not a field)
+        self._validate_given()
+        for name in derived:
+            try:
+                value = _DERIVED_DEFAULTS[name](self)
+            except OverflowError:
+                value = math.inf  # refused just below, naming the field
+            object.__setattr__(self, name, value)
         self._validate()
 
-    def _validate(self):
-        def check(name, ok, valid):
-            if not ok:
-                raise ValueError(f"parameter {name} = {getattr(self, name)!r} is out of range: valid is {valid}")
+    def _check(self, name, ok, valid):
+        if not ok:
+            raise ConfigError(f"parameter {name} = {getattr(self, name)!r} is out of range: valid is {valid}")
 
-        for name in ("R", "M_s", "I", "r0", "m", "g", "max_torque", "max_speed", "max_accel"):
+    def _validate_given(self):
+        """Ranges of the values the derived defaults are computed from (so they are never computed from junk)."""
+        for name in ("R", "M_s", "r0", "m", "g"):
+            self._check(name, getattr(self, name) > 0, "> 0")
+        self._check("m_b", self.m_b >= 0, ">= 0")
+
+    def _validate(self):
+        check = self._check
+        for name in self._derived:
+            check(name, math.isfinite(getattr(self, name)), "finite (derived from the other parameters)")
+        for name in ("I", "max_torque", "max_speed", "max_accel"):
             check(name, getattr(self, name) > 0, "> 0")
-        for name in ("m_b", "k0", "mu"):
+        for name in ("k0", "mu"):
             check(name, getattr(self, name) >= 0, ">= 0")
         check("phi", 0 < self.phi < math.pi / 2, "(0, pi/2) rad, i.e. phi_deg in (0, 90)")
         check("r0", self.r0 < self.R, f"(0, R) = (0, {self.R}) m: the mass is inside the shell")
@@ -214,57 +244,111 @@ class RollbotParams:
         """The numeric parameter vector ``p`` in the order of ``PARAM_VECTOR_FIELDS``."""
         return np.array([float(getattr(self, name)) for name in PARAM_VECTOR_FIELDS])
 
+    @property
+    def derived(self) -> frozenset:
+        """Names of the fields that hold their derived default (``k0``, ``max_torque``), not a given value."""
+        return self._derived
+
+    def with_changes(self, **changes) -> "RollbotParams":
+        """A copy with some fields changed (SI units) in which derived defaults follow the new values.
+
+        ``k0`` and ``max_torque``, where they hold their derived default here
+        and are not in ``changes``, are derived again from the new values
+        (the rule of parameter and problem files); given values stay.
+        """
+        following = {name: None for name in self._derived if name not in changes}
+        return dataclasses.replace(self, **changes, **following)
+
     def replace(self, **changes) -> "RollbotParams":
         """A copy with some fields changed (SI units), validated again.
 
         ``k0`` and ``max_torque`` keep their current values unless given; pass
-        ``k0=None`` to recompute the paper's default from the new M and R.
+        ``k0=None`` to recompute the paper's default from the new M and R.  A
+        derived default whose value the change leaves as it was stays derived.
         """
-        return dataclasses.replace(self, **changes)
+        new = self.with_changes(**changes)
+        moved = {name: getattr(self, name) for name in self._derived - set(changes)
+                 if getattr(new, name) != getattr(self, name)}
+        return new.with_changes(**moved) if moved else new
 
     def to_file_dict(self) -> dict[str, float]:
         """The parameters under their TOML keys, in file units (degrees for ``_deg``)."""
         return {key: getattr(self, attr) / scale for key, (attr, scale) in _FILE_KEYS.items()}
 
     @classmethod
-    def from_file_dict(cls, data: dict, source: str = "parameters") -> "RollbotParams":
-        """Build parameters from a mapping of TOML keys (file units), defaults elsewhere.
+    def from_file_dict(cls, data: dict, source: str = "parameters",
+                       base: "RollbotParams | None" = None) -> "RollbotParams":
+        """Build parameters from a mapping of TOML keys (file units) on top of ``base``.
+
+        Keys missing from ``data`` keep ``base``'s values (the paper's
+        prototype by default), except derived defaults (``k0``,
+        ``max_torque``), which follow the new values unless ``data`` or
+        ``base`` set them explicitly.
 
         Raises
         ------
-        ValueError
-            On an unknown key (listing the valid ones), a non-number or a value
-            out of its range.
+        ConfigError
+            On a mapping that is not a table, an unknown key (listing the
+            valid ones), a non-number or a value out of its range.
         """
-        unknown = sorted(set(data) - set(_FILE_KEYS))
+        if not isinstance(data, dict):
+            raise ConfigError(f"{source}: expected a table of parameters, got {data!r}")
+        unknown = sorted(map(str, set(data) - set(_FILE_KEYS)))
         if unknown:
-            raise ValueError(
+            raise ConfigError(
                 f"{source}: unknown key(s) {', '.join(unknown)}; valid keys are {', '.join(_FILE_KEYS)}"
             )
         kwargs = {}
-        for key, value in data.items():
-            attr, scale = _FILE_KEYS[key]
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ValueError(f"{source}: key {key} = {value!r} must be a number")
-            kwargs[attr] = value * scale
-        return cls(**kwargs)
+        for key, (attr, scale) in _FILE_KEYS.items():
+            if key not in data:
+                continue
+            value = data[key]
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
+                raise ConfigError(f"{source}: key {key} = {value!r} must be a finite number")
+            kwargs[attr] = float(value) * scale
+        try:
+            return (base or cls()).with_changes(**kwargs)
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: {exc}") from None
 
 
 def read_toml(path: str | Path, what: str) -> dict:
-    """The contents of a TOML file.
+    """The contents of a small UTF-8 TOML file (a byte-order mark is allowed).
+
+    Parameters
+    ----------
+    path : str or Path
+    what : str
+        What the file is, for messages (``"parameter file"``).
 
     Raises
     ------
-    ValueError
-        ``"<what> <path> does not exist"`` or ``"... is not valid TOML: <reason>"``.
+    ConfigError
+        Naming the file: an empty path, a missing or unreadable file, a
+        folder, a file larger than 1 MiB, text that is not UTF-8, or invalid TOML.
     """
-    path = Path(path)
+    path = user_path(path, what)
     try:
-        return tomllib.loads(path.read_text())
+        with open(path, "rb") as handle:  # a pipe works too (--params <(...)); the size bound keeps /dev/zero out
+            raw = handle.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:
-        raise ValueError(f"{what} {path} does not exist") from None
+        raise ConfigError(f"{what} {path} does not exist") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{what} {path} is a folder, not a file") from None
+    except OSError as exc:
+        raise ConfigError(f"{what} {path} cannot be read ({exc.strerror or exc})") from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise ConfigError(f"{what} {path} is larger than {MAX_FILE_BYTES >> 20} MiB: not a {what}")
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{what} {path} is not UTF-8 text (byte {exc.start})") from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{what} {path} is not valid TOML: {exc}") from None
+        raise ConfigError(f"{what} {path} is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{what} {path} is not valid TOML: nested too deeply") from None
 
 
 def load_params(path: str | Path | None) -> RollbotParams:
@@ -282,15 +366,16 @@ def load_params(path: str | Path | None) -> RollbotParams:
 
     Raises
     ------
-    ValueError
-        If the file is missing, is not valid TOML, or holds a bad key or value.
+    ConfigError
+        If the file is missing or unreadable, is not valid TOML, or holds a
+        bad key or value.
     """
     if path is None:
         return RollbotParams()
     data = read_toml(path, "parameter file")
     if "params" in data and isinstance(data["params"], dict):
         data = data["params"]
-    return RollbotParams.from_file_dict(data, source=str(path))
+    return RollbotParams.from_file_dict(data, source=f"parameter file {path}")
 
 
 def save_params(params: RollbotParams, path: str | Path) -> None:

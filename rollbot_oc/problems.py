@@ -2,10 +2,10 @@
 
 Schema (TOML; SI units, degrees only in keys ending in ``_deg``)::
 
-    name        = "circle_R035"          # required
+    name        = "circle_R035"          # required: letters, digits, _ and - (it names the output files)
     description = "..."                  # optional
     kind        = "circle"               # required: "circle", "waypoints" or "open_loop"
-    duration    = 300.0                  # required: longest run, s
+    duration    = 300.0                  # required: longest run, s, in [1, 3600]
     dt          = 0.01                   # optional: control period, s
 
     [start]                              # optional: where the robot rests at t = 0
@@ -18,7 +18,7 @@ Schema (TOML; SI units, degrees only in keys ending in ``_deg``)::
 
     [circle]                             # kind = "circle": revolve about a set point
     centre      = [0.0, 0.0]             # m
-    radius      = 0.35                   # m
+    radius      = 0.35                   # m, within the robot's quasi-stable range [R tan(phi), R0(max_speed)]
     settle_time = 120.0                  # s: deviations are measured after this (and after reaching)
     reach_tolerance = 0.05               # m: "reached" = within this of the circle for 10 s
 
@@ -39,12 +39,14 @@ Schema (TOML; SI units, degrees only in keys ending in ``_deg``)::
     [params]                             # optional: robot parameter overrides (parameter-file keys)
 
 Unknown keys and tables, missing required keys and impossible values are
-rejected on load with a ``ValueError`` naming the file, the key and the
-valid range.
+rejected on load with a ``ConfigError`` (a ``ValueError``) naming the file,
+the key and the valid range.  Each check is a small function beside the key
+it checks (``_check_name``, ``check_duration``, ``_check_radius``, ...).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -54,16 +56,19 @@ import numpy as np
 
 from rollbot_oc.control.missions import Circle, Waypoints, centre_of_curvature
 from rollbot_oc.dynamics import rest_state
+from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.params import RollbotParams, read_toml
 from rollbot_oc.simulate import Sensor, SimulationResult, simulate
 
 __all__ = ["Problem", "load_problem", "make_controller", "run_problem", "run_open_loop", "compute_metrics", "RunResult",
            "compare", "comparison_row", "comparison_table",
-           "CONTROLLERS", "REACH_HOLD"]
+           "CONTROLLERS", "REACH_HOLD", "DURATION_RANGE", "check_duration"]
 
 KINDS = ("circle", "waypoints", "open_loop")
 CONTROLLERS = ("pid", "nmpc")
 REACH_HOLD = 10.0  # s the robot must stay within reach_tolerance of the circle to count as arrived
+DURATION_RANGE = (1.0, 3600.0)  # s: a run's length, from a problem file or an option (--duration)
+POSITION_LIMIT = 1e4  # m: largest coordinate of a start, centre or stop
 
 _TOP_KEYS = {"name", "description", "kind", "duration", "dt", "start", "floor", "circle", "waypoints",
              "open_loop", "sensor", "params"}
@@ -131,22 +136,82 @@ class Problem:
         return rest_state(self.params, position=self.start_position, heading=self.start_heading)
 
     def with_duration(self, duration: float) -> "Problem":
-        """The same problem with another duration (s), for quick runs."""
-        return replace(self, duration=float(duration))
+        """The same problem with another duration (s, in ``DURATION_RANGE``), for quick runs."""
+        return replace(self, duration=check_duration(duration, "duration"))
+
+
+def check_duration(value, where: str = "duration") -> float:
+    """A run's length in s, checked against ``DURATION_RANGE`` (problem files and ``--duration`` alike).
+
+    Parameters
+    ----------
+    value : float
+        The duration, s.
+    where : str
+        Where it came from (``"--duration"``, ``"problem.toml: key 'duration'"``), for the message.
+
+    Raises
+    ------
+    ConfigError
+        If ``value`` is not a finite number in ``DURATION_RANGE``.
+    """
+    low, high = DURATION_RANGE
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"{where} = {value!r} must be a finite number of seconds")
+    if not low <= value <= high:
+        raise ConfigError(f"{where} = {value!r} s is out of range: valid is [{low:g}, {high:g}] s")
+    return float(value)
+
+
+def _check_name(value, source: str) -> str:
+    """The problem's ``name``: a plain identifier (it is the stem of every file a run writes)."""
+    from rollbot_oc.scenarios import NAME_PATTERN
+
+    if not isinstance(value, str) or not NAME_PATTERN.fullmatch(value):
+        raise ConfigError(f"{source}: key 'name' = {value!r} must be 1 to 64 letters, digits, '_' or '-' "
+                          "(not starting with '-'); it names the output files")
+    return value
+
+
+def _check_damping(params: RollbotParams, source: str) -> None:
+    """Scenarios need damping: the controllers and the open-loop theory use the quasi-stable states."""
+    if not params.k0 > 0:
+        raise ConfigError(f"{source} [params]: k0 = {params.k0!r} N m s: scenarios need damping k0 > 0 (the PID, "
+                          "the NMPC and the open-loop theory use the quasi-stable states, which need it)")
+
+
+@functools.lru_cache(maxsize=32)
+def _radius_range(params: RollbotParams) -> tuple[float, float]:
+    """The robot's quasi-stable radii ``[R_min, R_max]`` (slow branch, level floor), m."""
+    from rollbot_oc.quasi_stable import RadiusMap
+
+    radius_map = RadiusMap(params.replace(slope=0.0))
+    return radius_map.R_min, radius_map.R_max
+
+
+def _check_radius(table: dict, params: RollbotParams, where: str) -> float:
+    """The circle's radius, m: within the quasi-stable range of this robot, where it can revolve steadily."""
+    radius = _number(table, "radius", where, 0.0, POSITION_LIMIT, required=True)
+    low, high = _radius_range(params)
+    if not low <= radius <= high:
+        raise ConfigError(f"{where}: key 'radius' = {radius!r} m is out of range: valid for this robot is "
+                          f"[{low:.4f}, {high:.4f}] m (its quasi-stable radii, driving speeds 0 to "
+                          f"{params.max_speed:.4g} rad/s)")
+    return radius
 
 
 def _number(data, key, source, low=None, high=None, integer=False, required=False, default=None):
     if key not in data:
         if required:
-            raise ValueError(f"{source}: missing required key '{key}'")
+            raise ConfigError(f"{source}: missing required key '{key}'")
         return default
     value = data[key]
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ValueError(f"{source}: key '{key}' = {value!r} must be a finite number")
+        raise ConfigError(f"{source}: key '{key}' = {value!r} must be a finite number")
     if integer and int(value) != value:
-        raise ValueError(f"{source}: key '{key}' = {value!r} must be a whole number")
+        raise ConfigError(f"{source}: key '{key}' = {value!r} must be a whole number")
     if (low is not None and value < low) or (high is not None and value > high):
-        raise ValueError(f"{source}: key '{key}' = {value!r} is out of range: valid is [{low}, {high}]")
+        raise ConfigError(f"{source}: key '{key}' = {value!r} is out of range: valid is [{low}, {high}]")
     return int(value) if integer else float(value)
 
 
@@ -154,17 +219,27 @@ def _points(data, key, source, count=None):
     value = data.get(key)
     ok = isinstance(value, list) and value and all(
         isinstance(p, list) and len(p) == 2
-        and all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in p)
+        and all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c)
+                and abs(c) <= POSITION_LIMIT for c in p)
         for p in value)
     if not ok or (count is not None and len(value) != count):
-        raise ValueError(f"{source}: key '{key}' = {value!r} must be a list of [x, y] pairs in m")
+        raise ConfigError(f"{source}: key '{key}' = {value!r} must be a list of [x, y] pairs in m, "
+                          f"coordinates in [-{POSITION_LIMIT:g}, {POSITION_LIMIT:g}]")
     return [np.array(p, float) for p in value]
+
+
+def _table(data: dict, key: str, source: str) -> dict:
+    """The sub-table ``[key]`` (empty if absent)."""
+    value = data.get(key, {})
+    if not isinstance(value, dict):
+        raise ConfigError(f"{source}: '{key}' = {value!r} must be a table ([{key}])")
+    return value
 
 
 def _check_keys(data: dict, allowed: set, source: str):
     unknown = sorted(set(data) - allowed)
     if unknown:
-        raise ValueError(f"{source}: unknown key(s) {', '.join(unknown)}; valid keys are {', '.join(sorted(allowed))}")
+        raise ConfigError(f"{source}: unknown key(s) {', '.join(unknown)}; valid keys are {', '.join(sorted(allowed))}")
 
 
 def load_problem(path: str | Path, base: RollbotParams | None = None) -> Problem:
@@ -185,42 +260,38 @@ def problem_from_dict(data: dict, source: str = "<problem>", base: RollbotParams
     """Validate a problem given as a mapping (the parsed TOML); see ``load_problem``."""
     _check_keys(data, _TOP_KEYS, source)
     for table, keys in _TABLE_KEYS.items():
-        if table in data:
-            if not isinstance(data[table], dict):
-                raise ValueError(f"{source}: '{table}' must be a table")
-            _check_keys(data[table], keys, f"{source} [{table}]")
-    name = data.get("name")
-    if not isinstance(name, str) or not name:
-        raise ValueError(f"{source}: missing required key 'name' (a non-empty string)")
+        _check_keys(_table(data, table, source), keys, f"{source} [{table}]")
+    if "name" not in data:
+        raise ConfigError(f"{source}: missing required key 'name'")
+    name = _check_name(data["name"], source)
     kind = data.get("kind")
     if kind not in KINDS:
-        raise ValueError(f"{source}: key 'kind' = {kind!r}; valid are {', '.join(KINDS)}")
+        raise ConfigError(f"{source}: key 'kind' = {kind!r}; valid are {', '.join(KINDS)}")
     if kind not in data:
-        raise ValueError(f"{source}: kind = '{kind}' needs a [{kind}] table")
-    duration = _number(data, "duration", source, 1.0, 3600.0, required=True)
+        raise ConfigError(f"{source}: kind = '{kind}' needs a [{kind}] table")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise ConfigError(f"{source}: key 'description' = {description!r} must be a string")
+    if "duration" not in data:
+        raise ConfigError(f"{source}: missing required key 'duration'")
+    duration = check_duration(data["duration"], f"{source}: key 'duration'")
     dt = _number(data, "dt", source, 1e-3, 0.1, default=0.01)
-    params_table = {**(base or RollbotParams()).to_file_dict(), **data.get("params", {})}
-    floor = data.get("floor", {})
-    for key in ("slope_deg", "slope_dir_deg"):
-        if key in floor:
-            params_table[key] = _number(floor, key, f"{source} [floor]")
-    params = RollbotParams.from_file_dict(params_table, source=f"{source} [params]")
+    params = _problem_params(data, source, base)
     start = data.get("start", {})
     position = _points({"p": [start.get("position", [0.0, 0.0])]}, "p", f"{source} [start] position")[0]
-    heading = math.radians(_number(start, "heading_deg", f"{source} [start]", default=0.0))
+    heading = math.radians(_number(start, "heading_deg", f"{source} [start]", -360.0, 360.0, default=0.0))
     sensor_table = data.get("sensor", {})
     sensor = {key: _number(sensor_table, key, f"{source} [sensor]", 0.0, 1.0) for key in
               ("position_noise", "angle_noise", "gyro_noise", "speed_noise") if key in sensor_table}
     if "latency" in sensor_table:
         sensor["latency"] = _number(sensor_table, "latency", f"{source} [sensor]", 0, 100, integer=True)
-    common = dict(name=name, kind=kind, duration=duration, dt=dt, params=params,
-                  description=str(data.get("description", "")), start_position=position, start_heading=heading,
-                  sensor=sensor, source=source)
+    common = dict(name=name, kind=kind, duration=duration, dt=dt, params=params, description=description,
+                  start_position=position, start_heading=heading, sensor=sensor, source=source)
     table = data[kind]
     where = f"{source} [{kind}]"
     if kind == "circle":
         centre = _points({"c": [table.get("centre", [0.0, 0.0])]}, "c", f"{where} centre")[0]
-        radius = _number(table, "radius", where, 0.01, 100.0, required=True)
+        radius = _check_radius(table, params, where)
         settle = _number(table, "settle_time", where, 0.0, duration, default=0.0)
         tol = _number(table, "reach_tolerance", where, 1e-3, 10.0, default=0.05)
         return Problem(mission=Circle(centre, radius), settle_time=settle, reach_tolerance=tol, **common)
@@ -228,10 +299,25 @@ def problem_from_dict(data: dict, source: str = "<problem>", base: RollbotParams
         return Problem(mission=Waypoints(tuple(_points(table, "stops", where))), **common)
     speeds = table.get("speeds")
     if not (isinstance(speeds, list) and speeds):
-        raise ValueError(f"{where}: key 'speeds' = {speeds!r} must be a non-empty list of driving speeds in rad/s")
+        raise ConfigError(f"{where}: key 'speeds' = {speeds!r} must be a non-empty list of driving speeds in rad/s")
     speeds = tuple(_number({"s": s}, "s", f"{where} speeds", 1e-3, params.max_speed) for s in speeds)
     ramp = _number(table, "ramp_rate", where, 1e-3, 100.0, default=0.5)
     return Problem(speeds=speeds, ramp_rate=ramp, **common)
+
+
+def _problem_params(data: dict, source: str, base: RollbotParams | None) -> RollbotParams:
+    """The robot of a problem: its ``[params]`` and ``[floor]`` on top of ``base``, derived defaults following.
+
+    Checked for what every scenario needs (damping, see ``_check_damping``).
+    """
+    table = dict(_table(data, "params", source))
+    floor = data.get("floor", {})
+    for key in ("slope_deg", "slope_dir_deg"):
+        if key in floor:
+            table[key] = _number(floor, key, f"{source} [floor]")
+    params = RollbotParams.from_file_dict(table, source=f"{source} [params]", base=base)
+    _check_damping(params, source)
+    return params
 
 
 def make_controller(name: str, problem: Problem, params: RollbotParams | None = None, **options):
@@ -249,14 +335,17 @@ def make_controller(name: str, problem: Problem, params: RollbotParams | None = 
     """
     believed = params or problem.params.replace(slope=0.0)
     if name == "pid":
-        from rollbot_oc.control.pid import QuasiStablePID
-
-        return QuasiStablePID(problem.mission, believed, dt=problem.dt, **options)
-    if name == "nmpc":
-        from rollbot_oc.control.nmpc import NMPC
-
-        return NMPC(problem.mission, believed, dt=problem.dt, **options)
-    raise ValueError(f"controller = {name!r}; valid are {', '.join(CONTROLLERS)}")
+        from rollbot_oc.control.pid import QuasiStablePID as controller
+    elif name == "nmpc":
+        from rollbot_oc.control.nmpc import NMPC as controller
+    else:
+        raise ConfigError(f"controller = {name!r}; valid are {', '.join(CONTROLLERS)}")
+    try:
+        return controller(problem.mission, believed, dt=problem.dt, **options)
+    except ConfigError:
+        raise
+    except ValueError as exc:  # the constructors check the problem and robot they are given: a user's setting
+        raise ConfigError(f"{problem.source}: the {name} controller cannot be built for this problem: {exc}") from None
 
 
 @dataclass
@@ -286,12 +375,20 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
     params : RollbotParams, optional
         The controller's model of the robot (default: the plant's, level floor).
     duration : float, optional
-        Override the problem's duration, s.
+        Override the problem's duration, s, in ``DURATION_RANGE``.
     **options
         Passed to ``make_controller``.
+
+    Raises
+    ------
+    ConfigError
+        On an open-loop problem, a duration out of range or a controller that
+        cannot be built for the problem (before anything runs).
     """
     if problem.kind == "open_loop":
-        raise ValueError(f"{problem.source}: open-loop problems have no controller; use run_open_loop")
+        raise ConfigError(f"{problem.source}: open-loop problems have no controller; use run_open_loop")
+    if duration is not None:
+        problem = problem.with_duration(duration)
     name = controller if isinstance(controller, str) else type(controller).__name__
     ctrl = make_controller(controller, problem, params, **options) if isinstance(controller, str) else controller
     sensor = Sensor(seed=seed, **problem.sensor)
@@ -299,7 +396,7 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
     if callable(prepare):  # offline planning happens before the run starts
         prepare(problem.initial_state())
     start = time.perf_counter()
-    result = simulate(problem.initial_state(), duration or problem.duration, params=problem.params,
+    result = simulate(problem.initial_state(), problem.duration, params=problem.params,
                       controller=ctrl, dt=problem.dt, sensor=sensor)
     wall = time.perf_counter() - start
     centres = _centres(result, getattr(ctrl, "map", None))
@@ -399,22 +496,33 @@ def run_open_loop(problem: Problem) -> dict:
         ``runs``: for each speed the measured ``R0``, ``Omega``, ``xi`` and
         ``settled``, the theory's values (``*_theory``) and the relative errors
         ``R0_error`` and ``Omega_error``; ``max_R0_error`` over all speeds.
+        A speed whose run left the no-slip model has nulls and an ``error``
+        (and ``completed`` is False).
     """
-    from rollbot_oc.experiments import open_loop_run
+    from rollbot_oc.experiments import OpenLoopMeasurement, check_open_loop, open_loop_run
     from rollbot_oc.quasi_stable import quasi_stable_curve
 
     if problem.kind != "open_loop":
-        raise ValueError(f"{problem.source}: kind = '{problem.kind}' is not an open-loop problem")
+        raise ConfigError(f"{problem.source}: kind = '{problem.kind}' is not an open-loop problem")
+    for speed in problem.speeds:
+        check_open_loop(speed, problem.params, ramp_rate=problem.ramp_rate)
     theory = quasi_stable_curve(problem.speeds, problem.params.replace(slope=0.0))
     runs = []
     for speed, qs in zip(problem.speeds, theory):
-        measured, _ = open_loop_run(speed, problem.params, ramp_rate=problem.ramp_rate, dt=problem.dt)
+        try:
+            measured, _ = open_loop_run(speed, problem.params, ramp_rate=problem.ramp_rate, dt=problem.dt)
+        except NumericalFailure as exc:
+            runs.append({**OpenLoopMeasurement.failed_dict(speed, str(exc)), "R0_theory": qs.R0,
+                         "Omega_theory": qs.Omega, "xi_theory": qs.xi, "R0_error": None, "Omega_error": None,
+                         "xi_error": None})
+            continue
         row = measured.to_dict()
         row.update(R0_theory=qs.R0, Omega_theory=qs.Omega, xi_theory=qs.xi,
                    R0_error=measured.R0 / qs.R0 - 1.0, Omega_error=measured.Omega / qs.Omega - 1.0,
                    xi_error=measured.xi - qs.xi)
         runs.append(row)
-    return {"problem": problem.name, "runs": runs, "max_R0_error": max(abs(r["R0_error"]) for r in runs),
+    errors = [abs(r["R0_error"]) for r in runs if r["R0_error"] is not None]
+    return {"problem": problem.name, "runs": runs, "max_R0_error": max(errors) if errors else None,
             "completed": all(r["settled"] for r in runs)}
 
 

@@ -48,6 +48,7 @@ import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 
 from rollbot_oc.dynamics import NU, NW, OMEGA, POS, QUAT, symbolic_model
+from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
 from rollbot_oc.rotations import quat_multiply_np
 
@@ -162,7 +163,7 @@ def _start(branch: str, params: RollbotParams) -> np.ndarray:
         return np.array([math.cos(params.phi), 0.0, params.phi])
     if branch == "fast":
         return np.array([-math.cos(params.phi), math.pi, math.pi - params.phi])
-    raise ValueError(f"branch = {branch!r}; valid are {', '.join(BRANCHES)}")
+    raise ConfigError(f"branch = {branch!r}; valid are {', '.join(BRANCHES)}")
 
 
 @dataclass(frozen=True)
@@ -261,13 +262,13 @@ def _evaluate(z, omega0: float, params: RollbotParams, branch: str, solved: bool
 
 def _check_speed(omega0, params):
     if not (math.isfinite(omega0) and 0.0 <= omega0 <= params.max_speed):
-        raise ValueError(f"omega0 = {float(omega0)!r} rad/s is out of range: valid is [0, max_speed] = "
+        raise ConfigError(f"omega0 = {float(omega0)!r} rad/s is out of range: valid is [0, max_speed] = "
                          f"[0, {params.max_speed:.4g}] (raise max_speed in the parameters to go further)")
 
 
 def _check_damped(params):
     if not params.k0 > 0:
-        raise ValueError(f"k0 = {params.k0!r}: quasi-stable analysis needs damping k0 > 0 N m s; without it the "
+        raise ConfigError(f"k0 = {params.k0!r}: quasi-stable analysis needs damping k0 > 0 N m s; without it the "
                          "revolving states are not isolated (the robot can also roll straight on)")
 
 
@@ -340,8 +341,8 @@ def quasi_stable_state(omega0: float, params: RollbotParams | None = None, branc
 
     Raises
     ------
-    ValueError
-        If ``omega0`` is out of [0, max_speed] or the branch is unknown.
+    ConfigError
+        If ``omega0`` is out of [0, max_speed], the branch is unknown or ``k0`` is 0.
     """
     return quasi_stable_curve([omega0], params, branch)[0]
 
@@ -377,9 +378,11 @@ class RadiusMap:
 
     Raises
     ------
-    ValueError
-        If the slow branch cannot be followed to ``omega_max`` or ``R0`` is not
-        increasing along it (then no inverse map exists).
+    ConfigError
+        If ``k0`` is zero, or ``R0`` is not increasing along the slow branch
+        for these parameters (then no inverse map exists).
+    NumericalFailure
+        If the slow branch cannot be followed to ``omega_max``.
     """
 
     def __init__(self, params: RollbotParams | None = None, omega_max: float | None = None, knots: int = 121):
@@ -397,10 +400,11 @@ class RadiusMap:
             R0, dR0, _ = fun(z, w, p)
             radii[i], slopes[i], kappas[i] = float(R0), float(dR0), z[0]
             if not ok or not _evaluate(z, w, self.params, "slow", ok).converged:
-                raise ValueError(f"radius map: the slow branch could not be followed to omega0 = {w:.4g} rad/s")
+                raise NumericalFailure(f"radius map: the slow branch could not be followed to omega0 = {w:.4g} rad/s",
+                                       "continuation failed")
         if np.any(np.diff(radii) <= 0):
             bad = omegas[1:][np.diff(radii) <= 0][0]
-            raise ValueError(f"radius map: R0 stops increasing with omega0 at {bad:.4g} rad/s for these parameters; "
+            raise ConfigError(f"radius map: R0 stops increasing with omega0 at {bad:.4g} rad/s for these parameters; "
                              "no one-to-one map from radius to driving speed exists")
         self.omegas, self.radii, self.slopes, self.kappas = omegas, radii, slopes, kappas
         self._spline = CubicHermiteSpline(omegas, radii, slopes)
@@ -452,12 +456,12 @@ class RadiusMap:
 
         Raises
         ------
-        ValueError
+        ConfigError
             If a radius is outside ``[R_min, R_max]``.
         """
         R = np.asarray(radius, float)
         if np.any(~np.isfinite(R)) or np.any(R < self.R_min - 1e-12) or np.any(R > self.R_max + 1e-12):
-            raise ValueError(f"radius = {radius!r} m is out of range: valid is [{self.R_min:.4f}, {self.R_max:.4f}] m "
+            raise ConfigError(f"radius = {radius!r} m is out of range: valid is [{self.R_min:.4f}, {self.R_max:.4f}] m "
                              f"(driving speeds 0 to {self.omega_max:.4g} rad/s)")
         if R.ndim == 0:
             return self._omega_scalar(float(R))

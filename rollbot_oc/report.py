@@ -19,24 +19,15 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from rollbot_oc.outputs import atomic_write_text, write_json
+from rollbot_oc.outputs import OutputFolder, atomic_write_text, write_json
 from rollbot_oc.params import RollbotParams
 
-__all__ = ["make_report", "problem_path"]
+__all__ = ["make_report"]
 
 
-def problem_path(name: str) -> Path:
-    """The bundled scenario file ``problems/<name>.toml`` (source checkout or editable install).
-
-    Raises
-    ------
-    ValueError
-        If the ``problems/`` folder cannot be found.
-    """
-    for folder in (Path(__file__).resolve().parents[1] / "problems", Path.cwd() / "problems"):
-        if (folder / f"{name}.toml").exists():
-            return folder / f"{name}.toml"
-    raise ValueError(f"cannot find problems/{name}.toml: run from the rollbot_oc source folder")
+def _seconds(value) -> str:
+    """A time for the report's text, s; a run that did not finish says so."""
+    return "did not finish" if value is None else f"{value:.1f} s"
 
 
 def _log(message: str, enabled: bool):
@@ -51,7 +42,7 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
     Parameters
     ----------
     out : str or Path
-        Report folder (created).
+        Report folder (checked and created before anything is computed).
     params : RollbotParams, optional
         The robot; the paper's prototype by default.
     quick : bool
@@ -63,19 +54,28 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
     -------
     dict
         The key numbers (also in ``report.json``).
+
+    Raises
+    ------
+    ConfigError
+        If ``out`` cannot be used as a folder (checked first).
     """
     from rollbot_oc.animate import animate_run
-    from rollbot_oc.experiments import open_loop_run
+    from rollbot_oc.experiments import check_open_loop, open_loop_run
     from rollbot_oc.plots import (
         plot_comparison, plot_eigenvalues, plot_energy_and_contact, plot_quasi_stable, plot_time_series, plot_top_view,
     )
-    from rollbot_oc.problems import compare, comparison_row, comparison_table, load_problem
+    from rollbot_oc.problems import compare, comparison_row, comparison_table
     from rollbot_oc.quasi_stable import quasi_stable_curve
+    from rollbot_oc.scenarios import load_bundled
     from rollbot_oc.stability import stability_curve
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = OutputFolder(out, "out")
     params = params or RollbotParams()
+    problem = load_bundled("n_shape", base=params)  # the scenario is read before anything is computed
+    speeds = [w for w in (1.0, 3.0, 6.0) if w <= params.max_speed] or [params.max_speed / 2]
+    for speed in speeds:
+        check_open_loop(speed, params)
     summary: dict = {"quick": quick}
     steps = 5
     start = time.perf_counter()
@@ -96,14 +96,13 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
 
     _log(f"[2/{steps}] open-loop experiment against the theory", verbose)
     rows = []
-    for speed, theory in zip((1.0, 3.0, 6.0), quasi_stable_curve([1.0, 3.0, 6.0], params)):
+    for speed, theory in zip(speeds, quasi_stable_curve(speeds, params)):
         measured, _ = open_loop_run(speed, params)
         rows.append({**measured.to_dict(), "R0_theory": theory.R0, "R0_error": measured.R0 / theory.R0 - 1})
     write_json(out / "openloop.json", {"runs": rows})
     summary["open_loop_max_R0_error"] = max(abs(r["R0_error"]) for r in rows)
 
     _log(f"[3/{steps}] PID baseline and NMPC on the N-shape (full plant, 1 deg slope)", verbose)
-    problem = load_problem(problem_path("n_shape"), base=params)
     runs = compare(problem)
     table = comparison_table(runs)
     atomic_write_text(out / "comparison.md", f"# N-shape: PID baseline against NMPC\n\n{table}\n")
@@ -144,9 +143,9 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
         f" 1/s, recovery time {q['tau_range'][0]:.1f} to {q['tau_range'][1]:.1f} s.",
         "",
         f"Open loop: the simulated R0 differs from the theory by at most {summary['open_loop_max_R0_error']:.1e} "
-        "(relative) at 1, 3 and 6 rad/s.",
+        f"(relative) at {', '.join(f'{w:g}' for w in speeds)} rad/s.",
         "",
-        f"N-shape: the PID baseline needs {n['pid_time']:.1f} s, the NMPC {n['nmpc_time']:.1f} s"
+        f"N-shape: the PID baseline needs {_seconds(n['pid_time'])}, the NMPC {_seconds(n['nmpc_time'])}"
         + (f" ({n['speed_up']:.1f} times faster)" if n["speed_up"] else "") + ".",
         "",
         table,

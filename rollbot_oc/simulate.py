@@ -31,6 +31,8 @@ import functools
 import json
 import math
 import time
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -41,6 +43,7 @@ import numpy as np
 from rollbot_oc.dynamics import (
     NU, NW, NX, OMEGA, POS, QUAT, STATE_NAMES, THETA, THETA_DOT, RollbotModel, rk4, symbolic_model,
 )
+from rollbot_oc.errors import ConfigError
 from rollbot_oc.fastcall import FastFunction
 from rollbot_oc.outputs import save_npz
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
@@ -404,21 +407,51 @@ class SimulationResult:
 
         Raises
         ------
-        ValueError
-            If the file is missing or is not a saved run.
+        ConfigError
+            If the file is missing or unreadable, is not a saved run (not an
+            ``.npz``, truncated, keys missing), or its arrays do not fit together.
         """
         try:
-            data = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"{path}: cannot read a saved run ({exc})") from None
-        missing = {"t", "x", "command", "speed_command", "diag", "dt", "params_file"} - set(data.files)
+            with open(path, "rb") as handle, np.load(handle, allow_pickle=False) as data:
+                arrays = {key: data[key] for key in data.files}  # read everything now: a truncated file fails here
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+            raise ConfigError(f"{path}: cannot read a saved run ({exc})") from None
+        return cls._from_arrays(arrays, str(path))
+
+    @classmethod
+    def _from_arrays(cls, data: dict, source: str) -> "SimulationResult":
+        """A run from the arrays of a saved file, checked for the shapes ``save`` writes."""
+        missing = {"t", "x", "command", "speed_command", "diag", "dt", "params_file"} - set(data)
         if missing:
-            raise ValueError(f"{path}: not a saved run (missing {', '.join(sorted(missing))})")
-        params = RollbotParams.from_file_dict(json.loads(str(data["params_file"])), source=str(path))
-        events = [Event(str(k), float(t), float(m)) for k, t, m in
-                  zip(data["event_kinds"], data["event_times"], data.get("event_margins", np.zeros(0)))]
-        return cls(params, float(data["dt"]), data["t"], data["x"], data["command"], data["speed_command"],
-                   data["diag"], events, data["step_times"])
+            raise ConfigError(f"{source}: not a saved run (missing {', '.join(sorted(missing))})")
+        try:
+            table = json.loads(str(data["params_file"]))
+        except ValueError as exc:
+            raise ConfigError(f"{source}: not a saved run (parameters: {exc})") from None
+        params = RollbotParams.from_file_dict(table, source=source)
+        try:
+            t, x = np.asarray(data["t"], float), np.asarray(data["x"], float)
+            steps = t.size - 1
+            columns = {"command": (steps,), "speed_command": (steps,), "diag": (NDIAG, steps)}
+            arrays = {key: np.asarray(data[key], float) for key in columns}
+            step_times = np.asarray(data.get("step_times", np.zeros(steps)), float)
+            kinds, times = data.get("event_kinds", np.zeros(0, str)), data.get("event_times", np.zeros(0))
+            margins = data.get("event_margins", np.zeros(len(times)))
+            dt = float(data["dt"])
+            events = [Event(str(k), float(e), float(m)) for k, e, m in zip(kinds, times, margins, strict=True)]
+        except (ValueError, TypeError) as exc:
+            raise ConfigError(f"{source}: not a saved run ({exc})") from None
+        shapes_ok = (t.ndim == 1 and steps >= 1 and x.shape == (NX, t.size) and step_times.shape == (steps,)
+                     and all(arrays[key].shape == shape for key, shape in columns.items()))
+        finite = math.isfinite(dt) and dt > 0 and np.all(np.isfinite(t)) and np.all(np.isfinite(x))
+        if not (shapes_ok and finite):
+            raise ConfigError(f"{source}: not a saved run (arrays of inconsistent shapes or non-finite values)")
+        with np.errstate(over="ignore", invalid="ignore"):
+            unit = np.abs(np.linalg.norm(x[QUAT], axis=0) - 1.0).max() <= 1e-3  # loose: RK4 drifts a little
+        if not (unit and np.all(np.diff(t) > 0) and np.abs(x[POS]).max() <= 1e7):
+            raise ConfigError(f"{source}: not a saved run (times not increasing, quaternions not of unit norm or "
+                              "positions beyond 10^7 m)")
+        return cls(params, dt, t, x, arrays["command"], arrays["speed_command"], arrays["diag"], events, step_times)
 
 
 def _schedule(value, times: np.ndarray, name: str) -> np.ndarray:

@@ -42,12 +42,14 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.dynamics import NW, symbolic_model
+from rollbot_oc.errors import NumericalFailure
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
 from rollbot_oc.quasi_stable import QuasiStableState, level, quasi_stable_curve, quasi_symbolic
 from rollbot_oc.rotations import quat_multiply, quat_to_matrix
 
 __all__ = [
-    "Stability", "linearise", "stability", "stability_curve", "state_space", "perturbed_state", "STATE_LABELS",
+    "Stability", "linearise", "stability", "stability_curve", "stability_of_states", "stability_record", "state_space",
+    "perturbed_state", "STATE_LABELS",
 ]
 
 STATE_LABELS = ("alpha_x", "alpha_y", "d_omega_x", "d_omega_y", "d_omega_z", "d_theta_dot")
@@ -141,6 +143,7 @@ class Stability:
         return {
             "omega0": self.state.omega0,
             "branch": self.state.branch,
+            "converged": True,
             "eigenvalues": [[float(e.real), float(e.imag)] for e in self.eigenvalues],
             "lambda2": [float(self.lambda2.real), float(self.lambda2.imag)],
             "tau": self.tau if math.isfinite(self.tau) else None,
@@ -152,8 +155,9 @@ class Stability:
 def linearise(state: QuasiStableState):
     """The linearisation at a quasi-stable state: ``(A7, B7, Aq, Bq, v0)`` as numpy arrays (see module doc)."""
     if not state.converged:
-        raise ValueError(f"linearise: the quasi-stable state at omega0 = {state.omega0} rad/s did not converge "
-                         f"(residual {state.full_residual:.3g}); there is nothing to linearise about")
+        raise NumericalFailure(f"linearise: the quasi-stable state at omega0 = {state.omega0} rad/s did not converge "
+                               f"(residual {state.full_residual:.3g}); there is nothing to linearise about",
+                               "not converged")
     out = _linear_functions()[0](state.unknowns, state.omega0, level(state.params).vector())
     return tuple(np.array(v) for v in out)
 
@@ -182,21 +186,40 @@ def stability_curve(omegas, params: RollbotParams | None = None, branch: str = "
 
     Raises
     ------
-    ValueError
+    ConfigError
+        If a speed is out of range, the branch is unknown or ``k0`` is 0.
+    NumericalFailure
         If a quasi-stable state on the way does not converge (its speed is named).
     """
     params = params or RollbotParams()
     states = quasi_stable_curve(omegas, params, branch)
-    failed = [s.omega0 for s in states if not s.converged]
+    results = stability_of_states(states)
+    failed = [s.omega0 for s, r in zip(states, results) if r is None]
     if failed:
-        raise ValueError(f"stability: no quasi-stable state on the {branch} branch at omega0 = {failed[0]:.4g} rad/s")
-    if not states:
-        return []
-    Z = np.array([s.unknowns for s in states]).T
-    W = np.array([s.omega0 for s in states])[None, :]
-    mapped = _linear_functions()[0].map(len(states))(Z, W, level(params).vector())
-    A7, B7, Aq, Bq = (np.split(np.array(v), len(states), axis=1) for v in mapped[:4])
-    return [_analyse(*args) for args in zip(states, A7, B7, Aq, Bq)]
+        raise NumericalFailure(f"stability: no quasi-stable state on the {branch} branch at omega0 = "
+                               f"{failed[0]:.4g} rad/s", "not converged")
+    return results
+
+
+def stability_of_states(states: list[QuasiStableState]) -> list[Stability | None]:
+    """``stability`` of each state (one mapped CasADi call); None for a state that did not converge."""
+    good = [s for s in states if s.converged]
+    if not good:
+        return [None] * len(states)
+    Z = np.array([s.unknowns for s in good]).T
+    W = np.array([s.omega0 for s in good])[None, :]
+    mapped = _linear_functions()[0].map(len(good))(Z, W, level(good[0].params).vector())
+    A7, B7, Aq, Bq = (np.split(np.array(v), len(good), axis=1) for v in mapped[:4])
+    found = iter([_analyse(*args) for args in zip(good, A7, B7, Aq, Bq)])
+    return [next(found) if s.converged else None for s in states]
+
+
+def stability_record(state: QuasiStableState, result: Stability | None) -> dict:
+    """The JSON object of ``stability --json`` for a state: ``result.to_dict()``, or nulls if it did not converge."""
+    if result is not None:
+        return result.to_dict()
+    return {"omega0": state.omega0, "branch": state.branch, "converged": False, "eigenvalues": None, "lambda2": None,
+            "tau": None, "stable": None, "symmetry_eigenvalue": None}
 
 
 def perturbed_state(state: QuasiStableState, y) -> np.ndarray:

@@ -7,3 +7,13 @@ import matplotlib
 matplotlib.use("Agg")
 sys.path.insert(0, str(Path(__file__).parent))
 os.environ.setdefault("ROLLBOT_QUICK", "1")
+
+# Property-based tests (hypothesis): "ci" (the default) keeps the suite fast and repeatable; "nightly" searches
+# far more inputs: HYPOTHESIS_PROFILE=nightly python -m pytest tests/test_contract.py
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+settings.register_profile("ci", max_examples=25, deadline=None, derandomize=True, database=None,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile("nightly", max_examples=1000, deadline=None,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))

@@ -75,5 +75,5 @@ def test_bad_files(tmp_path):
         load_params(bad)
     text = tmp_path / "text.toml"
     text.write_text('R = "big"')
-    with pytest.raises(ValueError, match="R.*must be a number"):
+    with pytest.raises(ValueError, match="R.*must be a finite number"):
         load_params(text)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from rollbot_oc.dynamics import RollbotModel
+from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.experiments import open_loop_run
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.quasi_stable import FULL_RESIDUAL_TOL, RadiusMap, quasi_stable_curve, quasi_stable_state
@@ -108,8 +109,8 @@ def test_a_branch_that_ends_is_reported_not_invented():
     states = quasi_stable_curve([2.0, 6.0, 9.0], heavy_damping)
     assert states[0].converged and states[1].converged
     assert not states[2].converged and states[2].residual > 1e-9  # the branch folds near 8.2 rad/s
-    with pytest.raises(ValueError, match="R0 stops|could not be followed"):
-        RadiusMap(heavy_damping)
+    with pytest.raises((ConfigError, NumericalFailure), match="R0 stops|could not be followed"):
+        RadiusMap(heavy_damping)  # a fold is a numerical end of the branch (or, past it, a property of the robot)
 
 
 @pytest.mark.parametrize("call, match", [

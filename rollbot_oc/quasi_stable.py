@@ -26,6 +26,15 @@ starts at rest and is the one the paper's experiments and controller use.  The
 the other way (``Omega < 0``, so ``R0 < 0`` in the signed definition above: the
 centre of curvature lies on the other side).  Every result names its branch.
 
+Solving.  A curve's speeds are solved together: a coarse continuation
+(steps of 0.25 rad/s from omega0 = 0, tangent predictor from implicit
+differentiation, one ``mapaccum`` call) gives a cubic Hermite predictor for
+every speed, and a damped Newton iteration over a mapped CasADi Function
+corrects all of them at once.  A speed where that fails, that ends far from
+its predictor (another branch) or that lies beyond the last point the coarse
+continuation could follow (a fold) is reached instead by adaptive
+continuation (``_continue``) from the last good state below it.
+
 Check against the full model.  Every solution is turned into a full state of
 ``dynamics`` and the full equations of motion are evaluated there: a relative
 equilibrium must satisfy ``omega_dot = Omega z x omega``.  That residual

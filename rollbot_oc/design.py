@@ -14,10 +14,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.params import RollbotParams
-from rollbot_oc.progress import progress
 from rollbot_oc.quasi_stable import quasi_stable_curve
 from rollbot_oc.stability import stability_curve
 
@@ -71,8 +71,13 @@ def design_point(params: RollbotParams, speeds: int = 30) -> DesignPoint:
                        bool(results) and all(r.stable for r in results))
 
 
-def sweep(base: RollbotParams, field: str, values, speeds: int = 30, show_progress: bool = True) -> list[DesignPoint]:
+def sweep(base: RollbotParams, field: str, values, speeds: int = 30,
+          show_progress: bool | None = None) -> list[DesignPoint]:
     """``design_point`` for ``base`` with ``field`` (SI units, radians) set to each of ``values``.
+
+    ``show_progress``: a progress bar (tqdm, on stderr; a widget in notebooks):
+    True shows it, False hides it, None (default) shows it only where stderr
+    is a terminal or in a notebook.
 
     Raises
     ------
@@ -82,7 +87,7 @@ def sweep(base: RollbotParams, field: str, values, speeds: int = 30, show_progre
     if field not in SWEEPABLE:
         raise ConfigError(f"sweep: field = {field!r}; valid are {', '.join(SWEEPABLE)}")
     points = []
-    for value in progress(values, f"sweeping {field}", enabled=show_progress):
+    for value in tqdm(values, desc=f"sweeping {field}", disable=None if show_progress is None else not show_progress):
         # derived defaults follow (the paper's k0 = 0.4 1/s M R^2 and M_max = r0 m g) unless base sets them
         points.append(design_point(base.with_changes(**{field: float(value)}), speeds))
     return points

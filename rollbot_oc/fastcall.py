@@ -9,10 +9,13 @@ numbers in and out.
 
 from __future__ import annotations
 
+import functools
+import threading
+
 import casadi as ca
 import numpy as np
 
-__all__ = ["FastFunction"]
+__all__ = ["FastFunction", "fast_map"]
 
 
 class FastFunction:
@@ -45,3 +48,33 @@ class FastFunction:
             buf[:] = np.ravel(arg, order="F") if np.ndim(arg) > 1 else arg
         self._evaluate()
         return tuple(self._outputs)
+
+
+def fast_map(fun: ca.Function, n: int, shared: tuple[int, ...] = ()) -> FastFunction:
+    """``fun`` mapped over ``n`` columns (``Function.map``, serial) as a ``FastFunction``, built once and cached.
+
+    Parameters
+    ----------
+    fun : casadi.Function
+        The Function of one column (a long-lived object: the cache keys on it).
+    n : int
+        Number of columns.
+    shared : tuple of int
+        Inputs given once for all columns (not repeated), e.g. the parameters.
+
+    Notes
+    -----
+    Inputs and outputs are the mapped Function's: input ``i`` of ``fun`` with
+    shape ``(r, c)`` takes ``n`` blocks, so an ``(n, r)`` C-ordered array of
+    column vectors can be passed as it is (raveled); output ``j`` of shape
+    ``(r, c)`` comes back flat and ``reshape(n, c, r)`` gives the blocks
+    transposed (structural zeros included).  Each thread gets its own buffers.
+    """
+    return _fast_map(fun, n, tuple(shared), threading.get_ident())
+
+
+@functools.lru_cache(maxsize=256)
+def _fast_map(fun: ca.Function, n: int, shared: tuple[int, ...], thread: int) -> FastFunction:
+    inputs = fun.sx_in() if fun.is_a("SXFunction") else fun.mx_in()
+    dense = ca.Function(fun.name(), inputs, [ca.densify(out) for out in fun.call(inputs)])  # buffers are dense
+    return FastFunction(dense.map(f"{fun.name()}_map{n}", "serial", n, list(shared), []))

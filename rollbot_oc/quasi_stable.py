@@ -26,6 +26,15 @@ starts at rest and is the one the paper's experiments and controller use.  The
 the other way (``Omega < 0``, so ``R0 < 0`` in the signed definition above: the
 centre of curvature lies on the other side).  Every result names its branch.
 
+Solving.  A curve's speeds are solved together: a coarse continuation
+(steps of 0.25 rad/s from omega0 = 0, tangent predictor from implicit
+differentiation, one ``mapaccum`` call) gives a cubic Hermite predictor for
+every speed, and a damped Newton iteration over a mapped CasADi Function
+corrects all of them at once.  A speed where that fails, that ends far from
+its predictor (another branch) or that lies beyond the last point the coarse
+continuation could follow (a fold) is reached instead by adaptive
+continuation (``_continue``) from the last good state below it.
+
 Check against the full model.  Every solution is turned into a full state of
 ``dynamics`` and the full equations of motion are evaluated there: a relative
 equilibrium must satisfy ``omega_dot = Omega z x omega``.  That residual
@@ -49,6 +58,7 @@ from scipy.interpolate import CubicHermiteSpline
 
 from rollbot_oc.dynamics import NU, NW, OMEGA, POS, QUAT, symbolic_model
 from rollbot_oc.errors import ConfigError, NumericalFailure
+from rollbot_oc.fastcall import fast_map
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
 from rollbot_oc.rotations import quat_multiply_np
 
@@ -249,20 +259,12 @@ class QuasiStableState:
         return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "params"}
 
 
-def _evaluate(z, omega0: float, params: RollbotParams, branch: str, solved: bool) -> QuasiStableState:
-    q = quasi_symbolic()
-    p = level(params).vector()
-    residual = float(np.abs(np.array(q.residual(z, omega0, p))).max())
-    full = float(np.abs(np.array(q.full_residual(z, omega0, p))).max())
-    Omega, R0, speed, normal, slide, torque = np.array(q.outputs(z, omega0, p)).ravel()
-    ok = bool(solved and np.all(np.isfinite(z)) and residual < 1e-9 and full <= FULL_RESIDUAL_TOL)
-    return QuasiStableState(float(omega0), float(Omega), float(z[1]), float(z[2]), float(R0), branch, ok, residual,
-                            full, float(z[0]), float(speed), float(normal), float(slide), float(torque), params)
-
-
 def _check_speed(omega0, params):
-    if not (math.isfinite(omega0) and 0.0 <= omega0 <= params.max_speed):
-        raise ConfigError(f"omega0 = {float(omega0)!r} rad/s is out of range: valid is [0, max_speed] = "
+    """Raise for the first driving speed (rad/s; a number or an array) outside [0, max_speed]."""
+    speeds = np.atleast_1d(np.asarray(omega0, float))
+    bad = ~(np.isfinite(speeds) & (speeds >= 0.0) & (speeds <= params.max_speed))
+    if bad.any():
+        raise ConfigError(f"omega0 = {float(speeds[np.argmax(bad)])!r} rad/s is out of range: valid is [0, max_speed] = "
                          f"[0, {params.max_speed:.4g}] (raise max_speed in the parameters to go further)")
 
 
@@ -272,19 +274,30 @@ def _check_damped(params):
                          "revolving states are not isolated (the robot can also roll straight on)")
 
 
-def _newton(z_guess, omega0, params) -> tuple[np.ndarray, bool]:
-    z = np.array(quasi_symbolic().solve(z_guess, omega0, level(params).vector())).ravel()
-    return z, bool(np.all(np.isfinite(z)))
+# The batched route.  A coarse continuation (steps of _COARSE_STEP, tangent predictor, _COARSE_NEWTON Newton
+# iterations, all in one mapaccum call) gives z and dz/domega0 on a grid; their cubic Hermite interpolant predicts
+# every requested speed; a damped Newton iteration polishes all of them at once.
+_COARSE_STEP = 0.25  # rad/s: the continuation's largest step
+_COARSE_NEWTON = 4
+_COARSE_TOL = 1e-8  # largest closed-form residual of a trusted coarse point
+_MAX_JUMP = 0.2  # largest Newton correction of a trusted coarse point (as _continue's max_jump)
+_PREDICTOR_TOL = 1e-2  # largest |z - predictor| of an accepted point: more is another branch
+_NEWTON_ITER = 8
+_STEP_TOL = 1e-8  # a Newton step this small (inf-norm) ends the iteration: the error after it is about its square
+_TRUST = 0.1  # damping: largest Newton step (inf-norm)
 
 
 def quasi_stable_curve(omegas, params: RollbotParams | None = None, branch: str = "slow") -> list[QuasiStableState]:
-    """Quasi-stable states along a branch, by continuation from omega0 = 0.
+    """Quasi-stable states along a branch, followed from omega0 = 0.
+
+    All speeds are solved at once (batched Newton, see ``_solve_batched``);
+    a speed that fails there is reached by adaptive continuation from the
+    last good state below it, so the result is the continuation's.
 
     Parameters
     ----------
     omegas : array_like
-        Driving speeds, rad/s, in [0, max_speed]; solved in increasing order
-        and returned in the order given.
+        Driving speeds, rad/s, in [0, max_speed]; returned in the order given.
     params : RollbotParams, optional
         The robot (the slope is ignored: see module doc).
     branch : {"slow", "fast"}
@@ -296,21 +309,66 @@ def quasi_stable_curve(omegas, params: RollbotParams | None = None, branch: str 
         False and its residuals say by how much.
     """
     params = params or RollbotParams()
+    omegas, Z, rows, ok = _curve(omegas, params, branch)
+    return _states(omegas, Z, rows, ok, params, branch)
+
+
+def _curve(omegas, params: RollbotParams, branch: str, batched: bool = True):
+    """Solve a branch at ``omegas`` (rad/s): ``(omegas, Z, rows, ok)`` aligned with the speeds given.
+
+    ``Z`` (n, 3) holds the unknowns, ``rows`` (n, 12) the ``check`` outputs
+    (closed-form residual, full residual, Omega, R0, speed, N_z, slide margin,
+    motor torque) and ``ok`` (n,) says which converged.  ``batched=False`` is
+    the continuation route alone (speed by speed, kept for comparison).
+    """
     omegas = np.asarray(omegas, float).ravel()
-    for w in omegas:
-        _check_speed(w, params)
+    _check_speed(omegas, params)
     _check_damped(params)
-    z = _start(branch, params)
-    w_prev, results = 0.0, {}
-    for w in np.sort(omegas):
-        z_new, solved = _continue(z, w_prev, w, params)
-        results[w] = _evaluate(z_new, w, params, branch, solved)
-        if results[w].converged:  # otherwise keep following from the last good state
-            z, w_prev = z_new, w
-    return [results[w] for w in omegas]
+    z_start = _start(branch, params)
+    speeds, inverse = np.unique(omegas, return_inverse=True)
+    Z, rows, ok = np.full((speeds.size, 3), np.nan), np.full((speeds.size, 12), np.nan), np.zeros(speeds.size, bool)
+    if batched:
+        _solve_batched(speeds, Z, rows, ok, z_start, params)
+    _follow(speeds, Z, rows, ok, z_start, params)
+    return omegas, Z[inverse], rows[inverse], ok[inverse]
 
 
-def _continue(z, w_from, w_to, params, max_step: float = 0.25, max_jump: float = 0.2, min_step: float = 1e-4):
+def _states(omegas, Z, rows, ok, params: RollbotParams, branch: str) -> list[QuasiStableState]:
+    """``QuasiStableState`` objects from the arrays of ``_curve``."""
+    residual, full = np.abs(rows[:, 0:3]).max(axis=1), np.abs(rows[:, 3:6]).max(axis=1)
+    return [QuasiStableState(w, out[0], z[1], z[2], out[1], branch, good, res, fres, z[0], *out[2:], params)
+            for w, z, out, good, res, fres in zip(omegas.tolist(), Z.tolist(), rows[:, 6:].tolist(), ok.tolist(),
+                                                   residual.tolist(), full.tolist())]
+
+
+def _converged(Z, rows) -> np.ndarray:
+    """Which solutions (``Z`` and ``rows`` as in ``_curve``) are finite and satisfy the closed form and the full
+    equations."""
+    return (np.all(np.isfinite(Z), axis=-1) & (np.abs(rows[..., 0:3]).max(axis=-1) < 1e-9)
+            & (np.abs(rows[..., 3:6]).max(axis=-1) <= FULL_RESIDUAL_TOL))
+
+
+def _follow(speeds, Z, rows, ok, z_start, params: RollbotParams) -> None:
+    """Continuation to every speed not solved yet, from the last good state below it (fills the arrays in place).
+
+    ``speeds`` are increasing; a failed speed keeps the continuation's last
+    attempt (``ok`` False) and the next one starts again from the last good state.
+    """
+    if ok.all():
+        return
+    check, p = _batched().check, level(params).vector()
+    z, w_prev = z_start, 0.0
+    for i, w in enumerate(speeds.tolist()):
+        if not ok[i]:
+            Z[i], solved = _continue(z, w_prev, w, params)
+            rows[i] = np.array(check(Z[i], w, p)).ravel()
+            ok[i] = solved and _converged(Z[i], rows[i])
+        if ok[i]:
+            z, w_prev = Z[i], w
+
+
+def _continue(z, w_from, w_to, params, max_step: float = _COARSE_STEP, max_jump: float = _MAX_JUMP,
+              min_step: float = 1e-4):
     """Follow the branch from ``w_from`` to ``w_to`` (rad/s) with adaptive steps.
 
     Each step predicts from the secant through the last two solutions and
@@ -332,8 +390,108 @@ def _continue(z, w_from, w_to, params, max_step: float = 0.25, max_jump: float =
     return z, True
 
 
+def _newton(z_guess, omega0, params) -> tuple[np.ndarray, bool]:
+    z = np.array(quasi_symbolic().solve(z_guess, omega0, level(params).vector())).ravel()
+    return z, bool(np.all(np.isfinite(z)))
+
+
 def _residual(z, omega0, params) -> np.ndarray:
     return np.array(quasi_symbolic().residual(z, omega0, level(params).vector())).ravel()
+
+
+@dataclass(frozen=True)
+class _BatchFunctions:
+    """SX Functions of the batched route, all ``(z, omega0, p) -> ...`` except ``coarse``."""
+
+    newton: ca.Function  # the Newton step -J^-1 res
+    tangent: ca.Function  # dz/domega0 along the branch (implicit differentiation)
+    coarse: ca.Function  # ([z; omega0], omega0_next, p) -> ([z; omega0]_next, [tangent; |res|; |correction|])
+    check: ca.Function  # [res (3); full residual (3); Omega, R0, speed, N_z, slide margin, motor torque]
+    slope: ca.Function  # dR0/domega0 along the branch, m s/rad
+
+
+@functools.lru_cache(maxsize=None)
+def _batched() -> _BatchFunctions:
+    """Build (once per process) the Functions of the batched route from ``quasi_symbolic``."""
+    q = quasi_symbolic()
+    z, w, w_next = ca.SX.sym("z", 3), ca.SX.sym("omega0"), ca.SX.sym("omega0_next")
+    p = ca.SX.sym("p", len(PARAM_VECTOR_FIELDS))
+    res = q.residual(z, w, p)
+    jac = ca.jacobian(res, z)
+    cse = {"cse": True}  # common subexpressions once: fewer instructions per point
+    newton = ca.Function("quasi_newton_step", [z, w, p], [-ca.solve(jac, res)], ["z", "omega0", "p"], ["step"], cse)
+    tangent = ca.Function("quasi_tangent", [z, w, p], [-ca.solve(jac, ca.jacobian(res, w))],
+                          ["z", "omega0", "p"], ["dz"], cse)
+    guess = z + (w_next - w) * tangent(z, w, p)
+    z_next = guess
+    for _ in range(_COARSE_NEWTON):
+        z_next = z_next + newton(z_next, w_next, p)
+    info = ca.vertcat(tangent(z_next, w_next, p), ca.norm_inf(q.residual(z_next, w_next, p)),
+                      ca.norm_inf(z_next - guess))
+    coarse = ca.Function("quasi_coarse_step", [ca.vertcat(z, w), w_next, p], [ca.vertcat(z_next, w_next), info],
+                         ["zw", "omega0_next", "p"], ["zw_next", "info"], cse)
+    check = ca.Function("quasi_check", [z, w, p], [ca.vertcat(res, q.full_residual(z, w, p), q.outputs(z, w, p))],
+                        ["z", "omega0", "p"], ["out"], cse)
+    R0 = p[_P["R"]] * ca.sin(z[2]) / z[0]
+    slope = ca.Function("quasi_slope", [z, w, p], [ca.mtimes(ca.jacobian(R0, z), tangent(z, w, p))],
+                        ["z", "omega0", "p"], ["dR0"], cse)
+    return _BatchFunctions(newton, tangent, coarse, check, slope)
+
+
+@functools.lru_cache(maxsize=64)
+def _coarse_run(steps: int) -> ca.Function:
+    return _batched().coarse.mapaccum(steps)
+
+
+def _coarse(w_max: float, z_start, p):
+    """The coarse continuation over ``[0, w_max]`` (rad/s): ``(w_trusted, spline)``.
+
+    ``spline`` is the cubic Hermite spline of z(omega0) through the grid
+    points (values and AD tangents) up to the last trusted one, at
+    ``w_trusted``; ``(0.0, None)`` if there is none beyond omega0 = 0.
+    """
+    steps = math.ceil(w_max / _COARSE_STEP)
+    if steps == 0:
+        return 0.0, None
+    grid = np.linspace(0.0, w_max, steps + 1)  # the first step, 0 to 0, gives the tangent at the start
+    zw, info = (np.array(v) for v in _coarse_run(steps + 1)(np.append(z_start, 0.0), grid, p))
+    trusted = np.all(np.isfinite(info), axis=0) & (info[3] <= _COARSE_TOL) & (info[4] <= _MAX_JUMP)
+    last = steps if trusted.all() else int(np.argmin(trusted)) - 1  # trusted grid points: 0..last
+    if last < 1:
+        return 0.0, None
+    return grid[last], CubicHermiteSpline(grid[:last + 1], zw[:3, :last + 1].T, info[:3, :last + 1].T, axis=0)
+
+
+def _solve_batched(speeds, Z, rows, ok, z_start, params: RollbotParams) -> None:
+    """All ``speeds`` (increasing, rad/s) at once, filling ``Z``, ``rows`` and ``ok`` (as in ``_curve``) in place.
+
+    Predictor from ``_coarse``; speeds beyond its last trusted point (a fold)
+    are left unsolved (``ok`` False) for ``_follow``.  A point is accepted if
+    Newton converged, both residuals are small and it stayed within
+    ``_PREDICTOR_TOL`` of its predictor (else it jumped to another branch).
+    """
+    if speeds.size == 0:
+        return
+    p = level(params).vector()
+    w_trusted, spline = _coarse(float(speeds[-1]), z_start, p)
+    reach = speeds <= w_trusted
+    W = speeds[reach]
+    m = W.size
+    if m == 0:
+        return
+    predicted = spline(W) if spline is not None else np.tile(z_start, (m, 1))  # speeds 0 only
+    z, done = predicted.copy(), np.zeros(m, bool)
+    newton = fast_map(_batched().newton, m, shared=(2,))
+    for _ in range(_NEWTON_ITER):
+        step = newton(z.ravel(), W, p)[0].reshape(m, 3)
+        size = np.abs(step).max(axis=1)
+        z += step * np.minimum(1.0, _TRUST / np.maximum(size, _TRUST))[:, None]
+        done = size <= _STEP_TOL
+        if done.all():
+            break
+    out = fast_map(_batched().check, m, shared=(2,))(z.ravel(), W, p)[0].reshape(m, 12).copy()
+    Z[reach], rows[reach] = z, out
+    ok[reach] = done & _converged(z, out) & (np.abs(z - predicted).max(axis=1) <= _PREDICTOR_TOL)
 
 
 def quasi_stable_state(omega0: float, params: RollbotParams | None = None, branch: str = "slow") -> QuasiStableState:
@@ -347,23 +505,12 @@ def quasi_stable_state(omega0: float, params: RollbotParams | None = None, branc
     return quasi_stable_curve([omega0], params, branch)[0]
 
 
-@functools.lru_cache(maxsize=None)
-def _radius_with_slope() -> ca.Function:
-    """``(z_guess, omega0, p) -> (R0, dR0/domega0, z)``; the slope by implicit differentiation through Newton."""
-    q = quasi_symbolic()
-    zg, w, p = ca.MX.sym("z", 3), ca.MX.sym("omega0"), ca.MX.sym("p", len(PARAM_VECTOR_FIELDS))
-    z = q.solve(zg, w, p)
-    R0 = p[_P["R"]] * ca.sin(z[2]) / z[0]
-    return ca.Function("quasi_radius", [zg, w, p], [R0, ca.jacobian(R0, w), z], ["z_guess", "omega0", "p"],
-                       ["R0", "dR0", "z"])
-
-
 class RadiusMap:
     """The slow branch's revolving radius ``R0(omega0)``, its slope and its inverse, as fast callables.
 
-    Built once from a continuation over ``[0, omega_max]`` with the exact slope
-    ``dR0/domega0`` at every knot (implicit differentiation of the quasi-stable
-    equations through CasADi's Newton solver), then evaluated by cubic Hermite
+    Built once from the slow branch at the knots (``quasi_stable_curve``'s
+    batched solve) with the exact slope ``dR0/domega0`` at every knot
+    (implicit differentiation of the quasi-stable equations, AD), then evaluated by cubic Hermite
     interpolation: fourth-order accurate between knots and a few microseconds
     per call, which is what a 100 Hz controller needs.
 
@@ -390,18 +537,13 @@ class RadiusMap:
         self.omega_max = float(self.params.max_speed if omega_max is None else omega_max)
         _check_speed(self.omega_max, self.params)
         _check_damped(self.params)
-        fun = _radius_with_slope()
-        p = level(self.params).vector()
         omegas = np.linspace(0.0, self.omega_max, knots)
-        radii, slopes, kappas = np.empty(knots), np.empty(knots), np.empty(knots)
-        z = _start("slow", self.params)
-        for i, w in enumerate(omegas):
-            z, ok = _continue(z, omegas[i - 1] if i else 0.0, w, self.params)
-            R0, dR0, _ = fun(z, w, p)
-            radii[i], slopes[i], kappas[i] = float(R0), float(dR0), z[0]
-            if not ok or not _evaluate(z, w, self.params, "slow", ok).converged:
-                raise NumericalFailure(f"radius map: the slow branch could not be followed to omega0 = {w:.4g} rad/s",
-                                       "continuation failed")
+        _, Z, rows, ok = _curve(omegas, self.params, "slow")
+        if not ok.all():
+            raise NumericalFailure(f"radius map: the slow branch could not be followed to omega0 = "
+                                   f"{omegas[np.argmin(ok)]:.4g} rad/s", "continuation failed")
+        radii, kappas, p = rows[:, 7], Z[:, 0], level(self.params).vector()
+        slopes = fast_map(_batched().slope, knots, shared=(2,))(Z.ravel(), omegas, p)[0].copy()
         if np.any(np.diff(radii) <= 0):
             bad = omegas[1:][np.diff(radii) <= 0][0]
             raise ConfigError(f"radius map: R0 stops increasing with omega0 at {bad:.4g} rad/s for these parameters; "
@@ -485,7 +627,5 @@ class RadiusMap:
 
     def exact(self, omega0: float) -> tuple[float, float]:
         """``(R0, dR0/domega0)`` at ``omega0`` solved directly (Newton plus implicit differentiation)."""
-        _check_speed(omega0, self.params)
-        z, ok = _continue(_start("slow", self.params), 0.0, omega0, self.params)
-        R0, dR0, _ = _radius_with_slope()(z, omega0, level(self.params).vector())
-        return float(R0), float(dR0)
+        _, Z, rows, _ = _curve([omega0], self.params, "slow")
+        return float(rows[0, 7]), float(_batched().slope(Z[0], omega0, level(self.params).vector()))

@@ -44,7 +44,8 @@ import numpy as np
 from rollbot_oc.dynamics import NW, symbolic_model
 from rollbot_oc.errors import NumericalFailure
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
-from rollbot_oc.quasi_stable import QuasiStableState, level, quasi_stable_curve, quasi_symbolic
+from rollbot_oc.fastcall import fast_map
+from rollbot_oc.quasi_stable import QuasiStableState, _curve, _states, level, quasi_symbolic
 from rollbot_oc.rotations import quat_multiply, quat_to_matrix
 
 __all__ = [
@@ -94,7 +95,7 @@ def _linear_functions() -> tuple[ca.Function, ca.Function]:
     Aq = ca.mtimes([Q, A7, Q_plus])
     Bq = ca.mtimes(Q, B7)
     linear = ca.Function("quasi_linearisation", [z, omega0, p], [A7, B7, Aq, Bq, v0],
-                         ["z", "omega0", "p"], ["A7", "B7", "Aq", "Bq", "v0"])
+                         ["z", "omega0", "p"], ["A7", "B7", "Aq", "Bq", "v0"], {"cse": True})
     yq = ca.SX.sym("yq", 6)
     lift = ca.Function("quasi_perturbed_state", [z, omega0, p, yq],
                        [ca.substitute(x, y, ca.mtimes(Q_plus, yq))], ["z", "omega0", "p", "yq"], ["x"])
@@ -119,7 +120,8 @@ class Stability:
     stable : bool
         All five eigenvalues have negative real part.
     symmetry_eigenvalue : float
-        The eigenvalue of the removed mode in the 6x6 system (zero up to round-off), 1/s.
+        The eigenvalue of the removed mode ``v0`` (an exact eigenvector of the
+        6x6 system), its Rayleigh quotient ``v0.A v0 / v0.v0``: zero up to round-off, 1/s.
     A : numpy.ndarray (6, 6)
         Quotient system matrix, states ``STATE_LABELS`` (driving speed included).
     B : numpy.ndarray (6, 1)
@@ -154,35 +156,50 @@ class Stability:
 
 def linearise(state: QuasiStableState):
     """The linearisation at a quasi-stable state: ``(A7, B7, Aq, Bq, v0)`` as numpy arrays (see module doc)."""
-    if not state.converged:
-        raise NumericalFailure(f"linearise: the quasi-stable state at omega0 = {state.omega0} rad/s did not converge "
-                               f"(residual {state.full_residual:.3g}); there is nothing to linearise about",
-                               "not converged")
+    _require_converged(state)
     out = _linear_functions()[0](state.unknowns, state.omega0, level(state.params).vector())
     return tuple(np.array(v) for v in out)
 
 
-def _analyse(state: QuasiStableState, A7, B7, Aq, Bq) -> Stability:
-    eig = np.linalg.eigvals(Aq[:5, :5])
-    eig = eig[np.argsort(-eig.real, kind="stable")]
-    lam2 = complex(eig[0])
-    sym = np.linalg.eigvals(A7[:6, :6])
-    symmetry = float(sym[np.argmin(np.abs(sym))].real)
-    tau = -1.0 / lam2.real if lam2.real < 0 else math.inf
-    return Stability(state, eig, lam2, tau, bool(np.all(eig.real < 0)), symmetry, Aq, Bq, A7)
+def _require_converged(state: QuasiStableState):
+    if not state.converged:
+        raise NumericalFailure(f"linearise: the quasi-stable state at omega0 = {state.omega0} rad/s did not "
+                               f"converge (residual {state.full_residual:.3g}); there is nothing to linearise about",
+                               "not converged")
+
+
+def _analyse(states: list[QuasiStableState], Z: np.ndarray, params: RollbotParams) -> list[Stability]:
+    """``Stability`` of ``states`` (unknowns ``Z``, (n, 3)): one mapped linearisation, stacked eigenvalues."""
+    n = len(states)
+    W = np.array([s.omega0 for s in states])
+    # mapped outputs come back flat, block after block, each block column-major
+    A7, B7, Aq, Bq, v0 = (np.array(v).reshape(n, -1, rows).transpose(0, 2, 1) for v, rows in
+                          zip(fast_map(_linear_functions()[0], n, shared=(2,))(Z.ravel(), W, level(params).vector()),
+                              (7, 7, 6, 6, 7)))
+    eig = np.linalg.eigvals(Aq[:, :5, :5]).astype(complex)
+    eig = np.take_along_axis(eig, np.argsort(-eig.real, axis=1, kind="stable"), axis=1)
+    v0 = v0[:, :, 0]
+    symmetry = np.einsum("ni,nij,nj->n", v0, A7, v0) / np.einsum("ni,ni->n", v0, v0)  # A7 v0 = lambda v0
+    lam2 = eig[:, 0]
+    tau = np.full(n, math.inf)
+    tau[lam2.real < 0] = -1.0 / lam2.real[lam2.real < 0]
+    stable = np.all(eig.real < 0, axis=1)
+    return [Stability(*args) for args in zip(states, eig, lam2.tolist(), tau.tolist(), stable.tolist(),
+                                             symmetry.tolist(), Aq, Bq, A7)]
 
 
 def stability(state: QuasiStableState) -> Stability:
     """Eigenvalues, ``lambda_2`` and recovery time of a quasi-stable state."""
-    A7, B7, Aq, Bq, _ = linearise(state)
-    return _analyse(state, A7, B7, Aq, Bq)
+    _require_converged(state)
+    return _analyse([state], state.unknowns[None, :], state.params)[0]
 
 
 def stability_curve(omegas, params: RollbotParams | None = None, branch: str = "slow") -> list[Stability]:
     """``stability`` along a branch at driving speeds ``omegas`` (rad/s).
 
-    The quasi-stable states come from one continuation; the linearisations
-    from one mapped CasADi call over all of them.
+    The quasi-stable states come from one batched solve (``quasi_stable_curve``),
+    the linearisations from one mapped CasADi call over all of them and the
+    eigenvalues from one stacked ``numpy.linalg.eigvals``.
 
     Raises
     ------
@@ -192,13 +209,13 @@ def stability_curve(omegas, params: RollbotParams | None = None, branch: str = "
         If a quasi-stable state on the way does not converge (its speed is named).
     """
     params = params or RollbotParams()
-    states = quasi_stable_curve(omegas, params, branch)
-    results = stability_of_states(states)
-    failed = [s.omega0 for s, r in zip(states, results) if r is None]
-    if failed:
+    omegas, Z, rows, ok = _curve(omegas, params, branch)
+    if not ok.all():
         raise NumericalFailure(f"stability: no quasi-stable state on the {branch} branch at omega0 = "
-                               f"{failed[0]:.4g} rad/s", "not converged")
-    return results
+                               f"{omegas[np.argmin(ok)]:.4g} rad/s", "not converged")
+    if not omegas.size:
+        return []
+    return _analyse(_states(omegas, Z, rows, ok, params, branch), Z, params)
 
 
 def stability_of_states(states: list[QuasiStableState]) -> list[Stability | None]:
@@ -206,11 +223,7 @@ def stability_of_states(states: list[QuasiStableState]) -> list[Stability | None
     good = [s for s in states if s.converged]
     if not good:
         return [None] * len(states)
-    Z = np.array([s.unknowns for s in good]).T
-    W = np.array([s.omega0 for s in good])[None, :]
-    mapped = _linear_functions()[0].map(len(good))(Z, W, level(good[0].params).vector())
-    A7, B7, Aq, Bq = (np.split(np.array(v), len(good), axis=1) for v in mapped[:4])
-    found = iter([_analyse(*args) for args in zip(good, A7, B7, Aq, Bq)])
+    found = iter(_analyse(good, np.array([s.unknowns for s in good]), good[0].params))
     return [next(found) if s.converged else None for s in states]
 
 

@@ -8,6 +8,7 @@ import pytest
 from rollbot_oc.dynamics import RollbotModel
 from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.experiments import open_loop_run
+from rollbot_oc import quasi_stable
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.quasi_stable import FULL_RESIDUAL_TOL, RadiusMap, quasi_stable_curve, quasi_stable_state
 
@@ -136,3 +137,43 @@ def test_damping_hardly_moves_the_quasi_stable_states():
         assert np.allclose(changed, nominal, rtol=0.02)  # measured: at most 1 % for half or twice the damping
     heavy = [s.R0 for s in quasi_stable_curve(speeds, base.replace(k0=4.0 * base.k0))]
     assert not np.allclose(heavy, nominal, rtol=0.01)  # ... and the check can tell a difference
+
+
+def _count_continuations(monkeypatch):
+    calls = []
+    original = quasi_stable._continue
+
+    def counting(z, w_from, w_to, params, **kwargs):
+        calls.append(w_to)
+        return original(z, w_from, w_to, params, **kwargs)
+
+    monkeypatch.setattr(quasi_stable, "_continue", counting)
+    return calls
+
+
+def test_the_batched_route_needs_no_continuation_on_a_regular_branch(monkeypatch):
+    calls = _count_continuations(monkeypatch)
+    for branch in ("slow", "fast"):
+        assert all(s.converged for s in quasi_stable_curve(OMEGAS, branch=branch))
+    RadiusMap()
+    assert calls == []
+    folding = quasi_stable_curve(OMEGAS, RollbotParams(k0=0.02534))  # the fold near 8.2 rad/s
+    assert calls and min(calls) > 7.5  # only the last stretch before the fold and the speeds beyond it
+    assert {s.omega0 for s in folding if not s.converged} <= set(calls)
+
+
+def test_a_point_that_leaves_its_predictor_is_solved_by_continuation(monkeypatch):
+    """A predictor far off (as if Newton had jumped) is caught, and continuation gives the same state."""
+    reference = quasi_stable_curve(OMEGAS)
+    original = quasi_stable._coarse
+
+    def bad_predictor(w_max, z_start, p):
+        w_trusted, spline = original(w_max, z_start, p)
+        return w_trusted, lambda w: spline(w) + np.where(np.isclose(w, OMEGAS[150]), 0.05, 0.0)[:, None]
+
+    monkeypatch.setattr(quasi_stable, "_coarse", bad_predictor)
+    calls = _count_continuations(monkeypatch)
+    again = quasi_stable_curve(OMEGAS)
+    assert calls == [OMEGAS[150]]
+    assert all(s.converged for s in again)
+    assert max(abs(a.xi - b.xi) + abs(a.kappa - b.kappa) for a, b in zip(again, reference)) < 1e-10

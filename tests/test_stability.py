@@ -8,7 +8,7 @@ import pytest
 
 from rollbot_oc.experiments import damped_modes
 from rollbot_oc.params import RollbotParams
-from rollbot_oc.quasi_stable import quasi_stable_state
+from rollbot_oc.quasi_stable import _curve, _states, quasi_stable_state
 from rollbot_oc.simulate import simulate
 from rollbot_oc.stability import linearise, perturbed_state, stability, stability_curve, state_space
 
@@ -100,3 +100,29 @@ def test_bad_input():
         stability_curve([-1.0])
     with pytest.raises(ValueError, match="expected 6"):
         perturbed_state(quasi_stable_state(1.0), np.zeros(3))
+
+
+@pytest.mark.parametrize("branch", ["slow", "fast"])
+@pytest.mark.parametrize("params", [
+    RollbotParams(), RollbotParams(phi=math.radians(30)), RollbotParams(phi=math.radians(60)), RollbotParams(m=0.2),
+    RollbotParams(m=0.45), RollbotParams(k0=0.02534),  # strong damping: the slow branch folds near 8.2 rad/s
+], ids=["prototype", "phi30", "phi60", "m0.2", "m0.45", "k0_fold"])
+def test_batched_route_equals_the_continuation(params, branch):
+    """The batched solve and eigenvalues against the speed-by-speed continuation and per-state linearisation."""
+    omegas = np.linspace(0.0, 3 * np.pi, 200)
+    _, Z, rows, ok = _curve(omegas, params, branch)
+    _, Z_ref, rows_ref, ok_ref = _curve(omegas, params, branch, batched=False)
+    assert np.array_equal(ok, ok_ref)  # the same points converge (all but those beyond a fold)
+    assert np.abs(Z - Z_ref)[ok].max() <= 1e-10  # kappa, theta0, xi
+    assert np.abs(rows[:, 6:] - rows_ref[:, 6:])[ok].max() <= 1e-10  # Omega, R0, speed, forces, torque
+    reference = _states(omegas, Z_ref, rows_ref, ok_ref, params, branch)
+    converged = [s for s in reference if s.converged and s.omega0 > 0]
+    batched = stability_curve([s.omega0 for s in converged], params, branch)
+    for state, result in zip(converged, batched):
+        eig = np.linalg.eigvals(linearise(state)[2][:5, :5])
+        eig = eig[np.argsort(-eig.real, kind="stable")]
+        assert np.abs(result.eigenvalues - eig).max() <= 1e-10
+    if params.k0 > 0.02:
+        assert branch == "fast" or (ok[:150].all() and not ok[175:].any())
+    else:
+        assert ok.all()

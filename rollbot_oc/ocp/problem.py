@@ -23,7 +23,7 @@ interval, and for terms without controls also the last node), ``"start"``,
 Phases.  ``N`` and ``T`` may be sequences: the horizon is a chain of phases,
 each with its own number of intervals and its own (fixed or free) duration,
 joined by continuity of the state; a multi-stop motion plans every leg with
-one problem.  ``ocp.T`` lists the duration symbols, usable in costs.
+one problem.
 
 Every route (``ocp.solver(name)``) solves this one description; see
 ``rollbot_oc.ocp.routes``.
@@ -177,7 +177,6 @@ class OCP:
         self.x = ca.SX.sym("x", m.nx)
         self.u = ca.SX.sym("u", m.nu)
         self.p = ca.SX.sym("p", m.np)
-        self.T = [ca.SX.sym(f"T{i}") for i in range(len(Ns))]
         s = m.slices
         self.state = SimpleNamespace(**{name: self.x[getattr(s, name)] for name in
                                         ("position", "quaternion", "omega", "theta_dot", "velocity")})

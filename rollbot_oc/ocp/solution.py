@@ -89,7 +89,7 @@ class OCPSolution:
         ocp, L = tr.ocp, tr.layout
         qs = ca.vertcat(*ocp.parameters.values()) if ocp.parameters else ca.SX(0, 1)
         vs = ca.vertcat(*[s for s, *_ in ocp.variables.values()]) if ocp.variables else ca.SX(0, 1)
-        fun = ca.Function("value", [ocp.x, ocp.u, ocp.p, qs, vs, ca.vertcat(*ocp.T)], [ca.SX(expr)])
+        fun = ca.Function("value", [ocp.x, ocp.u, ocp.p, qs, vs], [ca.SX(expr)])
         X, U = self.states, self.controls
         if at == "nodes":
             U = np.hstack([U, np.zeros((L.nu, 1))])
@@ -100,7 +100,7 @@ class OCPSolution:
         par = self.parameters
         q = np.concatenate([par[L.parameters[name]] for name in ocp.parameters]) if ocp.parameters else np.zeros(0)
         v = np.concatenate([self.variable(name) for name in ocp.variables]) if ocp.variables else np.zeros(0)
-        out = fun.map(X.shape[1])(X, U, par[L.parameters["p"]], q, v, self.durations)
+        out = fun.map(X.shape[1])(X, U, par[L.parameters["p"]], q, v)
         return np.array(out)
 
     def check(self) -> "OCPSolution":

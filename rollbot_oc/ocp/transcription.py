@@ -202,7 +202,6 @@ class Transcription:
         # -- one SX Function per interval, mapped ----------------------------------------------
         qs = ca.vertcat(*ocp.parameters.values()) if ocp.parameters else ca.SX(0, 1)
         vs = ca.vertcat(*[sym for sym, *_ in ocp.variables.values()]) if ocp.variables else ca.SX(0, 1)
-        Ts = ca.vertcat(*ocp.T)
         xs, us, ps = ocp.x, ocp.u, ocp.p
         xn, hs = ca.SX.sym("x_next", nx), ca.SX.sym("h")
         ss = ca.SX.sym("s", n_soft_path)
@@ -212,47 +211,51 @@ class Transcription:
         general_path = sum((e for kind, e, at in ocp.costs if kind == "general" and at == "path"), ca.SX(0))
         lsq_path = [e for kind, e, at in ocp.costs if kind == "lsq" and at == "path"]
         res_path = ca.sqrt(hs) * ca.vertcat(*lsq_path) if lsq_path else ca.SX(0, 1)
-        interval = ca.Function("interval", [xs, us, xn, hs, ps, qs, vs, Ts, ss],
+        interval = ca.Function("interval", [xs, us, xn, hs, ps, qs, vs, ss],
                                [ca.vertcat(gap, hard, soft_rows), hs * general_path + soft_cost,
                                 ca.vertcat(res_path, soft_res)],
-                               ["x", "u", "x_next", "h", "p", "q", "v", "T", "s"], ["g", "l", "r"])
-        g_int, l_int, r_int = interval.map(n)(X[:, :-1], U, X[:, 1:], h, p, q, v, durations, S)
+                               ["x", "u", "x_next", "h", "p", "q", "v", "s"], ["g", "l", "r"])
+        g_int, l_int, r_int = interval.map(n)(X[:, :-1], U, X[:, 1:], h, p, q, v, S)
         lb_int = np.concatenate([np.zeros(nx), *[c.lower for c in hard_path], soft_lb])
         ub_int = np.concatenate([np.zeros(nx), *[c.upper for c in hard_path], soft_ub])
-        g_parts, lbg, ubg = [ca.vec(g_int)], [np.tile(lb_int, n)], [np.tile(ub_int, n)]
-        if nt:  # a phase's duration is the same at each of its nodes
-            linked = [k for k in range(n) if k + 1 == n or phase_of[k + 1] == phase_of[k]]
-            g_parts.append(ca.vec(TAU[0, [k + 1 for k in linked]] - TAU[0, linked]))
-            lbg.append(np.zeros(len(linked)))
-            ubg.append(np.zeros(len(linked)))
+        # rows in stage order (each node's own conditions, then its interval's gap and path rows), which
+        # structure-exploiting solvers need
+        rows = {k: [] for k in range(n + 1)}  # node -> [(expression, lower, upper)]
+        linked = {k for k in range(n) if k + 1 == n or phase_of[k + 1] == phase_of[k]} if nt else set()
+        columns = ca.horzsplit(g_int)
+        for k in range(n):
+            rows[k].append((columns[k], lb_int, ub_int))
+            if k in linked:  # a phase's duration is the same at each of its nodes
+                rows[k].append((TAU[0, k + 1] - TAU[0, k], np.zeros(1), np.zeros(1)))
         general = [ca.sum2(l_int), ocp.time_weight * ca.sum1(durations)]
         residuals = [ca.vec(r_int)]
 
-        def at_node(expr, at):
-            k = self._node(at, firsts, n)
+        def at_node(expr, k):
             uk = U[:, k] if k < n else ca.MX.zeros(nu)
-            return ca.Function("node", [xs, us, ps, qs, vs, Ts], [expr])(X[:, k], uk, p, q, v, durations)
+            return ca.Function("node", [xs, us, ps, qs, vs], [expr])(X[:, k], uk, p, q, v)
 
         # path constraints without controls also hold at the last node
         node_terms = [(c, "end") for c in hard_path if not ca.depends_on(c.expr, us)]
         node_terms += [(c, at) for c, at in ocp.constraints if at != "path" and c.soft is None]
         for c, at in node_terms:
-            g_parts.append(at_node(c.expr, at))
-            lbg.append(c.lower)
-            ubg.append(c.upper)
+            k = self._node(at, firsts, n)
+            rows[k].insert(0 if k < n else len(rows[k]), (at_node(c.expr, k), c.lower, c.upper))
         slack = node_slacks.start
         for c, at in node_soft:
+            k = self._node(at, firsts, n)
             s = w[slack:slack + c.expr.numel()]
             slack += c.expr.numel()
-            rows, lb, ub, cost, res = _soft_rows([c], s, at_node(c.expr, at))
-            g_parts.append(rows)
-            lbg.append(lb)
-            ubg.append(ub)
+            soft, lb, ub, cost, res = _soft_rows([c], s, at_node(c.expr, k))
+            rows[k].append((soft, lb, ub))
             general.append(cost)
             residuals.append(res)
+        ordered = [r for k in range(n + 1) for r in rows[k]]
+        g_parts = [e for e, _, _ in ordered]
+        lbg = [np.broadcast_to(lo, (e.numel(),)) for e, lo, _ in ordered]
+        ubg = [np.broadcast_to(hi, (e.numel(),)) for e, _, hi in ordered]
         for kind, e, at in ocp.costs:
             if at != "path":
-                (general if kind == "general" else residuals).append(at_node(e, at))
+                (general if kind == "general" else residuals).append(at_node(e, self._node(at, firsts, n)))
         self.w, self.par = w, par
         self.g = ca.vertcat(*g_parts)
         self.lbg, self.ubg = np.concatenate(lbg), np.concatenate(ubg)

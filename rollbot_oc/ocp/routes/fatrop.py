@@ -26,14 +26,15 @@ class FatropRoute:
 
     def __init__(self, transcription, max_iter: int = 500, tol: float = 1e-8, options: dict | None = None):
         L = transcription.layout
-        if L.free_T or L.variables or L.node_slacks.stop > L.node_slacks.start:
+        if L.nt or L.variables or L.node_slacks.stop > L.node_slacks.start:
             raise ConfigError("the fatrop route applies to stage-wise problems: fixed durations, no global "
                               "variables and no soft node constraints; use 'ipopt' or 'sqp'")
         if not ca.has_nlpsol("fatrop"):
             raise ConfigError("the fatrop route needs CasADi's fatrop plugin, which this CasADi lacks")
         self.transcription = tr = transcription
         nlp = {"x": tr.w, "p": tr.par, "f": tr.f, "g": tr.g}
-        opts = {"structure_detection": "auto", "expand": True, "print_time": False, "debug": False,
+        opts = {"structure_detection": "auto", "equality": (tr.lbg == tr.ubg).tolist(), "expand": True,
+                "print_time": False, "debug": False,
                 "fatrop": {"print_level": 0, "max_iter": max_iter, "tol": tol, **(options or {})}}
         self.solver = ca.nlpsol("ocp_fatrop", "fatrop", nlp, opts)
 

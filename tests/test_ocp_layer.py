@@ -1,0 +1,126 @@
+"""The optimal-control layer: one description, transcribed once, solved by its routes; checks against physics."""
+
+import math
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from rollbot_oc.dynamics import RollbotModel, from_reduced, rest_state, to_reduced
+from rollbot_oc.errors import ConfigError
+from rollbot_oc.ocp import OCP, FreeTime, bounded
+from rollbot_oc.ocp.constraints import at_rest, driving_speed, motor_accel, motor_torque, no_jump, no_slide
+from rollbot_oc.params import RollbotParams
+from rollbot_oc.simulate import simulate
+
+PARAMS = RollbotParams(slope=math.radians(1.0), slope_dir=0.5)
+GOAL = np.array([0.0, 0.4])
+N = 12
+
+
+def leg_problem():
+    """Minimum time (plus a little effort) from rest to rest at a goal 0.4 m away, on a 1 deg slope."""
+    ocp = OCP(N=N, T=FreeTime(guess=3.0, lower=0.5, upper=10.0))
+    x, u = ocp.state, ocp.control
+    ocp.initial_state()
+    goal = ocp.parameter("goal", 2)
+    ocp.minimize_time()
+    ocp.add_least_squares(u.accel / ocp.params.max_accel, weight=1e-2)
+    ocp.subject_to(motor_torque(ocp, 0.9), no_jump(ocp, 0.2), no_slide(ocp, 0.9), driving_speed(ocp, 0.95),
+                   motor_accel(ocp))
+    ocp.subject_to(x.position == goal, at="end")
+    ocp.subject_to(at_rest(ocp), at="end")
+    return ocp
+
+
+@pytest.fixture(scope="module")
+def leg():
+    ocp = leg_problem()
+    ipopt = ocp.solver("ipopt", hessian="limited-memory")
+    start = to_reduced(rest_state(PARAMS))
+    # a physical guess: a speed ramp up and down simulated in the plant, sampled at the nodes
+    run = simulate(from_reduced(start), 3.0, params=PARAMS,
+                   speed=lambda t: min(2.0 * t, 2.0) if t < 1.5 else max(0.0, 2.0 - 2.0 * (t - 1.5)))
+    nodes = np.linspace(0, run.x.shape[1] - 1, N + 1).astype(int)
+    guess = ipopt.transcription.layout.pack(np.array([to_reduced(run.x[:, k]) for k in nodes]).T,
+                                            run.applied_accel[np.minimum(nodes[:-1], run.applied_accel.size - 1)],
+                                            [3.0])
+    parameters = dict(x0=start, goal=GOAL, p=PARAMS.vector())
+    return ocp, ipopt, ipopt.solve(guess, **parameters), parameters
+
+
+def test_ipopt_leg_ends_at_rest_on_the_goal_and_keeps_every_limit(leg):
+    ocp, _, sol, _ = leg
+    assert sol.success and sol.route == "ipopt" and sol.iterations > 0 and sol.solve_time > 0
+    end = sol.states[:, -1]
+    assert np.abs(end[0:2] - GOAL).max() < 1e-6
+    # at rest on the sloped floor: a static equilibrium of the full model (independent of the OCP's formula)
+    assert np.abs(RollbotModel(PARAMS).xdot(from_reduced(end))).max() < 1e-6
+    for constraint, bound in ((motor_torque(ocp, 0.9), 0.9), (driving_speed(ocp, 0.95), 0.95)):
+        assert np.abs(sol.value(constraint.expr, at="intervals")).max() <= bound + 1e-6
+    assert sol.value(no_jump(ocp, 0.2).expr, at="intervals").min() >= 0.2 - 1e-6
+    assert 0.5 < sol.T < 10.0 and sol.times[-1] == pytest.approx(sol.T)
+
+
+def test_plan_flies_in_the_plant(leg):
+    """The planned accelerations replayed open loop in the plant (RK4 at 100 Hz) end near the goal.
+
+    12 intervals of about 0.2 s with 2 RK4 steps each: the transcription's own integration error is a few
+    centimetres here (measured 3.0 cm), so the bound is 5 cm.
+    """
+    _, _, sol, parameters = leg
+    u, T = sol.controls[0], sol.T
+    run = simulate(from_reduced(parameters["x0"]), T, params=PARAMS,
+                   accel=lambda t: u[min(int(t / (T / N) + 1e-9), N - 1)])
+    assert np.linalg.norm(run.position[:, -1] - GOAL) < 0.05
+
+
+def test_an_rti_step_from_the_converged_solution_stays_there(leg):
+    ocp, _, sol, parameters = leg
+    step = ocp.solver("rti", compiled=False).attempt(warm=sol, **parameters)
+    assert step.success and np.abs(step.w - sol.w).max() < 1e-3
+
+
+def test_constraint_jacobian_agrees_with_finite_differences(leg):
+    """AD against a central-difference spot check along a random direction."""
+    _, ipopt, sol, parameters = leg
+    tr = ipopt.transcription
+    fun = ca.Function("gJ", [tr.w, tr.par], [tr.g, ca.jacobian(tr.g, tr.w)])
+    par = tr.parameter_vector(parameters)
+    direction = np.random.default_rng(3).normal(size=sol.w.size)
+    eps = 1e-6
+    plus, minus = (np.array(fun(sol.w + s * eps * direction, par)[0]).ravel() for s in (1, -1))
+    J = fun(sol.w, par)[1]
+    assert np.abs(np.array(J @ direction).ravel() - (plus - minus) / (2 * eps)).max() < 1e-5
+
+
+def test_relations_become_constraints():
+    ocp = OCP(N=3, T=1.0)
+    x = ocp.state
+    ocp.subject_to(x.theta_dot <= 2.0, 1.0 >= x.omega[0], x.position == ocp.parameter("goal", 2), at="end")
+    (le, _), (ge, _), (eq, _) = ocp.constraints
+    assert le.upper[0] == 2.0 and le.lower[0] == -np.inf
+    assert ge.upper[0] == 1.0
+    assert np.all(eq.lower == 0.0) and np.all(eq.upper == 0.0)
+    box = bounded(-1.0, x.theta_dot, 1.0)
+    assert box.lower[0] == -1.0 and box.upper[0] == 1.0
+
+
+@pytest.mark.parametrize("build, message", [
+    (lambda: OCP(N=0), "N = 0"),
+    (lambda: OCP(N=(5, 5), T=(1.0,)), "2 phases"),
+    (lambda: OCP(N=5, T=-1.0), "T = -1.0"),
+    (lambda: FreeTime(guess=5.0, lower=6.0), "FreeTime"),
+    (lambda: OCP(N=5, T=1.0).subject_to(OCP(N=5).control.accel <= 1, at="middle"), "at = 'middle'"),
+    (lambda: OCP(N=5, T=1.0).solver("magic"), "solver route"),
+])
+def test_bad_descriptions_are_one_clear_error(build, message):
+    with pytest.raises(ConfigError, match=message):
+        build()
+
+
+def test_missing_parameter_is_named():
+    ocp = OCP(N=3, T=1.0)
+    ocp.initial_state()
+    with pytest.raises(ConfigError, match="'x0'"):
+        ocp.solver("ipopt").solve(p=RollbotParams().vector())

@@ -18,7 +18,6 @@ import numpy as np
 
 from rollbot_oc.dynamics import NW, reduced_model
 from rollbot_oc.ocp.problem import OCP, Constraint
-from rollbot_oc.params import ParamView
 from rollbot_oc.rotations import quat_to_matrix
 
 __all__ = ["motor_torque", "driving_speed", "motor_accel", "no_jump", "no_slide", "position_box",

@@ -10,7 +10,7 @@ import numpy as np
 from rollbot_oc.errors import ConfigError, Interrupted
 from rollbot_oc.ocp.solution import OCPSolution
 
-__all__ = ["IpoptRoute", "nlp_solution"]
+__all__ = ["NLPRoute", "IpoptRoute", "nlp_solution", "call_nlp"]
 
 _INTERRUPTED = ("User_Requested_Stop", "NonIpopt_Exception_Thrown")
 
@@ -46,7 +46,39 @@ def _sigint_pending() -> bool:
     return False
 
 
-class IpoptRoute:
+class NLPRoute:
+    """A route through a CasADi ``nlpsol`` built on the transcription (subclasses set ``solver``)."""
+
+    name = "nlp"
+    transcription = None
+    solver: ca.Function = None
+
+    def solve(self, guess=None, warm: OCPSolution | None = None, **parameters) -> OCPSolution:
+        """Solve to convergence; raises ``NotConverged`` (with the failed solution) if it does not."""
+        return self.attempt(guess, warm, **parameters).check()
+
+    def attempt(self, guess=None, warm: OCPSolution | None = None, **parameters) -> OCPSolution:
+        """Solve and return the solution whatever its status (check ``success``)."""
+        tr = self.transcription
+        par = tr.parameter_vector(parameters)
+        args = dict(p=par, lbx=tr.lbw, ubx=tr.ubw, lbg=tr.lbg, ubg=tr.ubg)
+        if warm is not None:
+            args.update(x0=warm.w, lam_x0=warm.lam_w, lam_g0=warm.lam_g)
+        else:
+            args["x0"] = tr.default_guess() if guess is None else np.asarray(guess, float)
+        start = time.perf_counter()
+        sol = call_nlp(self.solver, args)
+        return nlp_solution(self.name, self.solver, tr, sol, par, time.perf_counter() - start)
+
+    def to_function(self) -> ca.Function:
+        """``(w_guess, par) -> w``: the solve as a CasADi Function."""
+        tr = self.transcription
+        w0, par = ca.MX.sym("w0", tr.w.numel()), ca.MX.sym("par", tr.par.numel())
+        sol = self.solver(x0=w0, p=par, lbx=tr.lbw, ubx=tr.ubw, lbg=tr.lbg, ubg=tr.ubg)
+        return ca.Function(f"ocp_{self.name}_solve", [w0, par], [sol["x"]], ["w0", "par"], ["w"])
+
+
+class IpoptRoute(NLPRoute):
     """IPOPT on the transcription (see ``rollbot_oc.ocp.routes``).
 
     Parameters
@@ -72,27 +104,3 @@ class IpoptRoute:
                  "hessian_approximation": hessian, **(options or {})}
         nlp = {"x": tr.w, "p": tr.par, "f": tr.f, "g": tr.g}
         self.solver = ca.nlpsol("ocp_ipopt", "ipopt", nlp, {"ipopt": ipopt, "print_time": False})
-
-    def solve(self, guess=None, warm: OCPSolution | None = None, **parameters) -> OCPSolution:
-        """Solve to convergence; raises ``NotConverged`` (with the failed solution) if it does not."""
-        return self.attempt(guess, warm, **parameters).check()
-
-    def attempt(self, guess=None, warm: OCPSolution | None = None, **parameters) -> OCPSolution:
-        """Solve and return the solution whatever its status (check ``success``)."""
-        tr = self.transcription
-        par = tr.parameter_vector(parameters)
-        args = dict(p=par, lbx=tr.lbw, ubx=tr.ubw, lbg=tr.lbg, ubg=tr.ubg)
-        if warm is not None:
-            args.update(x0=warm.w, lam_x0=warm.lam_w, lam_g0=warm.lam_g)
-        else:
-            args["x0"] = tr.default_guess() if guess is None else np.asarray(guess, float)
-        start = time.perf_counter()
-        sol = call_nlp(self.solver, args)
-        return nlp_solution(self.name, self.solver, tr, sol, par, time.perf_counter() - start)
-
-    def to_function(self) -> ca.Function:
-        """``(w_guess, par) -> w``: the IPOPT solve as a CasADi Function."""
-        tr = self.transcription
-        w0, par = ca.MX.sym("w0", tr.w.numel()), ca.MX.sym("par", tr.par.numel())
-        sol = self.solver(x0=w0, p=par, lbx=tr.lbw, ubx=tr.ubw, lbg=tr.lbg, ubg=tr.ubg)
-        return ca.Function("ocp_ipopt_solve", [w0, par], [sol["x"]], ["w0", "par"], ["w"])

@@ -433,12 +433,6 @@ def _one_line(exc: BaseException) -> str:
     return text if len(text) <= 2000 else text[:2000] + " ..."
 
 
-def _is_failure(exc: BaseException) -> bool:
-    """A numerical failure: ``NumericalFailure``, or the OCP's ``SolveFailed`` until it derives from it."""
-    ocp = sys.modules.get("rollbot_oc.control.ocp")
-    return isinstance(exc, NumericalFailure) or (ocp is not None and isinstance(exc, getattr(ocp, "SolveFailed", ())))
-
-
 def main(argv=None) -> int:
     """Run ``rollbot-oc`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status (see module doc)."""
     os.environ.setdefault("MPLBACKEND", "Agg")  # the command line only writes figures to files
@@ -466,7 +460,7 @@ def main(argv=None) -> int:
             print(f"{PROG}: error: {where}{exc.strerror or _one_line(exc)}", file=sys.stderr)
             return EXIT_USAGE
         except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback unless --debug
-            if not _is_failure(exc):
+            if not isinstance(exc, NumericalFailure):
                 if debug:
                     traceback.print_exc()
                 print(f"{PROG}: internal error: {type(exc).__name__}: {_one_line(exc)}"

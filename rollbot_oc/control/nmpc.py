@@ -52,6 +52,7 @@ from rollbot_oc.control.ocp import (
     NP, OCPSettings, OrbitEntry, RestToRest, SolveFailed, interval_function, stage_function,
 )
 from rollbot_oc.codegen import compiled, compiler
+from rollbot_oc.errors import interruptible
 from rollbot_oc.dynamics import NZ, reduced_model, to_reduced
 from rollbot_oc.fastcall import FastFunction
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
@@ -270,7 +271,8 @@ class TrackingSolver:
         if lam_x is not None:
             args.update(lam_x0=lam_x, lam_g0=lam_g)
         try:
-            sol = self.nlp(**args)
+            with interruptible("NMPC solve"):
+                sol = self.nlp(**args)
         except RuntimeError as exc:  # a failed solve, never a crash of the loop
             return x_warm, (lam_x, lam_g), f"error: {str(exc)[:60]}", False, time.perf_counter() - start
         seconds = time.perf_counter() - start
@@ -433,11 +435,12 @@ class RTISolver:
     def _qp(self, args, lam_x, lam_g):
         """Solve the QP warm-started from the previous active set; once more cold if that fails."""
         try:
-            if lam_x is not None:
-                sol = self.qp(**args, lam_x0=lam_x, lam_a0=lam_g)
-                if self.qp.stats()["success"]:
-                    return sol, True
-            sol = self.qp(**args)
+            with interruptible("NMPC solve"):
+                if lam_x is not None:
+                    sol = self.qp(**args, lam_x0=lam_x, lam_a0=lam_g)
+                    if self.qp.stats()["success"]:
+                        return sol, True
+                sol = self.qp(**args)
         except RuntimeError:  # an ill-posed QP is a failed solve, never a crash of the loop
             return None, False
         return sol, bool(self.qp.stats()["success"])

@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from rollbot_oc.errors import NotConverged, interruptible
 from rollbot_oc.dynamics import NW, NZ, from_reduced, reduced_model, rk4, to_reduced
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
 from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_state
@@ -59,12 +60,11 @@ _P = {name: i for i, name in enumerate(PARAM_VECTOR_FIELDS)}
 _W0 = ca.DM.zeros(NW)
 
 
-class SolveFailed(RuntimeError):
-    """An optimisation did not converge; carries its solver status."""
+class SolveFailed(NotConverged):
+    """An optimisation did not converge; carries its solver status and the failed plan."""
 
     def __init__(self, what: str, status: str, plan=None):
-        super().__init__(f"{what}: the solver did not converge (status {status})")
-        self.status = status
+        super().__init__(what, status, plan)
         self.plan = plan
 
 
@@ -271,7 +271,8 @@ class _MinTimeOCP:
             bounds["lbx"], bounds["ubx"] = bounds["lbx"].copy(), bounds["ubx"].copy()
             bounds["lbx"][i_T] = bounds["ubx"][i_T] = duration
         start = time.perf_counter()
-        sol = self.solver(x0=x0, p=np.concatenate([z0, self.params.vector(), p_extra]), **bounds)
+        with interruptible(self.name):
+            sol = self.solver(x0=x0, p=np.concatenate([z0, self.params.vector(), p_extra]), **bounds)
         elapsed = time.perf_counter() - start
         stats = self.solver.stats()
         x = np.array(sol["x"]).ravel()

@@ -7,13 +7,10 @@ import time
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.errors import ConfigError, Interrupted
+from rollbot_oc.errors import ConfigError, interruptible
 from rollbot_oc.ocp.solution import OCPSolution
 
 __all__ = ["NLPRoute", "IpoptRoute", "nlp_solution", "call_nlp"]
-
-_INTERRUPTED = ("User_Requested_Stop", "NonIpopt_Exception_Thrown")
-
 
 def nlp_solution(route: str, solver: ca.Function, transcription, sol, par, elapsed: float) -> OCPSolution:
     """An ``OCPSolution`` from an ``nlpsol`` result and its stats."""
@@ -27,23 +24,8 @@ def nlp_solution(route: str, solver: ca.Function, transcription, sol, par, elaps
 
 def call_nlp(solver, args: dict):
     """Call an ``nlpsol`` Function; a Ctrl-C inside the solver becomes ``Interrupted``, not a failed solve."""
-    try:
-        sol = solver(**args)
-    except KeyboardInterrupt:
-        raise Interrupted("interrupted") from None
-    status = str(solver.stats().get("return_status", ""))
-    if status in _INTERRUPTED and _sigint_pending():
-        raise Interrupted("interrupted")
-    return sol
-
-
-def _sigint_pending() -> bool:
-    """True if a SIGINT arrived during the last native call (Python raises it at the next check)."""
-    try:
-        time.sleep(0)  # let Python run pending signal handlers
-    except KeyboardInterrupt:
-        return True
-    return False
+    with interruptible("optimal-control solve"):
+        return solver(**args)
 
 
 class NLPRoute:

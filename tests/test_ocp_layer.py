@@ -124,3 +124,24 @@ def test_missing_parameter_is_named():
     ocp.initial_state()
     with pytest.raises(ConfigError, match="'x0'"):
         ocp.solver("ipopt").solve(p=RollbotParams().vector())
+
+
+def test_the_structured_linearisation_equals_the_nlps_ad(leg):
+    """The QP data the SQP routes assemble stage by stage equal CasADi's AD of the whole NLP."""
+    from rollbot_oc.ocp.linearisation import StructuredLinearisation
+
+    _, ipopt, sol, parameters = leg
+    tr = ipopt.transcription
+    Jr = ca.jacobian(tr.residuals, tr.w)
+    reference = ca.Function("reference", [tr.w, tr.par], [
+        ca.mtimes(Jr.T, Jr) + ca.hessian(tr.general, tr.w)[0],
+        ca.gradient(tr.general, tr.w) + ca.mtimes(Jr.T, tr.residuals), tr.g, ca.jacobian(tr.g, tr.w), tr.f])
+    par = tr.parameter_vector(parameters)
+    w = sol.w + 1e-3 * np.random.default_rng(5).normal(size=sol.w.size)  # away from the optimum
+    H, grad, g, J, f = StructuredLinearisation(tr, regularisation=0.0, compiled=False)(w, par)
+    rH, rgrad, rg, rJ, rf = reference(w, par)
+    assert float(ca.norm_inf(H - rH)) < 1e-9 * max(1.0, float(ca.norm_inf(rH)))
+    assert np.abs(grad - np.array(rgrad).ravel()).max() < 1e-10
+    assert np.abs(g - np.array(rg).ravel()).max() < 1e-12
+    assert float(ca.norm_inf(J - rJ)) < 1e-12
+    assert f == pytest.approx(float(rf), rel=1e-12)

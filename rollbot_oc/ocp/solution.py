@@ -106,7 +106,7 @@ class OCPSolution:
     def check(self) -> "OCPSolution":
         """Return self if it converged, else raise ``NotConverged`` carrying the status and this solution."""
         if not self.success:
-            raise NotConverged(f"{self.route}: the solver did not converge (status {self.status})", self.status, self)
+            raise NotConverged(f"{self.route} solve", self.status, self)
         return self
 
     def summary(self) -> dict:

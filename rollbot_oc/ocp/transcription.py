@@ -136,13 +136,54 @@ class Layout:
         return w
 
 
+@dataclass(frozen=True)
+class Stage:
+    """One stage of the transcription: an interval with its start node, or the last node.
+
+    Attributes
+    ----------
+    index : int
+        Node index ``k``.
+    function : casadi.Function
+        ``(y, v, p, q, hs) -> (c, l, r)``: the stage's constraint rows, its
+        general cost and its least-squares residuals, from its local vector
+        ``y`` (``x_k, tau_k, u_k, s_k, x_{k+1}, tau_{k+1}``, then the slacks of
+        its soft node constraints; the last node has ``x_N, tau_N`` and its
+        slacks), the global variables ``v``, the model parameters ``p``, the
+        problem's parameters ``q`` and ``hs`` (the interval length, or
+        ``1 / N_phase`` when durations are free: ``h = tau_k hs``).
+    columns : numpy.ndarray of int
+        Where ``y`` sits in ``w``.
+    rows : slice
+        Where ``c`` sits in ``g``.
+    hs : float
+    lower, upper : numpy.ndarray
+        Bounds of ``c``.
+    """
+
+    index: int
+    function: ca.Function
+    columns: np.ndarray
+    rows: slice
+    hs: float
+    lower: np.ndarray
+    upper: np.ndarray
+
+
 class Transcription:
     """The NLP of an ``OCP`` by direct multiple shooting (see module doc), built once.
+
+    Every stage is one SX Function of its local variables (``stages``); stages
+    alike share one Function (mapped over them).  The NLP in MX for the
+    interior-point routes and the structured linearisation of the SQP routes
+    are both built from these Functions, so every route solves the same
+    problem.
 
     Attributes
     ----------
     ocp : OCP
     layout : Layout
+    stages : list of Stage
     w, par : casadi.MX
         Decision vector and parameter vector symbols.
     f, general, residuals, g : casadi.MX
@@ -156,9 +197,9 @@ class Transcription:
         m = ocp.model
         nx, nu = m.nx, m.nu
         path = [c for c, at in ocp.constraints if at == "path"]
-        hard_path = [c for c in path if c.soft is None]
-        soft_path = [c for c in path if c.soft is not None]
-        n_soft_path = sum(c.expr.numel() for c in soft_path)
+        self._hard_path = [c for c in path if c.soft is None]
+        self._soft_path = [c for c in path if c.soft is not None]
+        n_soft_path = sum(c.expr.numel() for c in self._soft_path)
         nt = int(any(isinstance(t, FreeTime) for t in ocp.durations))
         n = sum(ocp.N)
         stage = nx + nt + nu + n_soft_path
@@ -167,103 +208,120 @@ class Transcription:
         for name, (sym, *_rest) in ocp.variables.items():
             variables[name] = slice(cursor, cursor + sym.numel())
             cursor += sym.numel()
-        node_soft = [(c, at) for c, at in ocp.constraints if at != "path" and c.soft is not None]
-        node_slacks = slice(cursor, cursor + sum(c.expr.numel() for c, _ in node_soft))
         params = {"p": slice(0, m.np)}
         offset = m.np
         for name, sym in ocp.parameters.items():
             params[name] = slice(offset, offset + sym.numel())
             offset += sym.numel()
+        phase_of = np.repeat(np.arange(len(ocp.N)), ocp.N)
+        firsts = np.concatenate([[0], np.cumsum(ocp.N)[:-1]]).astype(int)
+        # node terms: hard constraints, soft constraints and costs at each node
+        hard = {k: [] for k in range(n + 1)}
+        soft = {k: [] for k in range(n + 1)}
+        costs = {k: [] for k in range(n + 1)}
+        hard[n] += [c for c in self._hard_path if not ca.depends_on(c.expr, ocp.u)]  # also at the last node
+        for c, at in ocp.constraints:
+            if at != "path":
+                (hard if c.soft is None else soft)[self._node(at, firsts, n)].append(c)
+        for kind, e, at in ocp.costs:
+            if at != "path":
+                costs[self._node(at, firsts, n)].append((kind, e))
+        n_slacks = sum(c.expr.numel() for k in soft for c in soft[k])
+        node_slacks = slice(cursor, cursor + n_slacks)
         self.layout = L = Layout(nx, nt, nu, n_soft_path, tuple(ocp.N), tuple(ocp.durations), variables,
                                  node_slacks, params)
+        self._symbols = _Symbols(ocp, nt, n_soft_path)
+        linked = {k for k in range(n) if k + 1 == n or phase_of[k + 1] == phase_of[k]} if nt else set()
 
-        # -- symbols ---------------------------------------------------------------------------
+        # -- the stages ------------------------------------------------------------------------
+        functions, self.stages, row, slack = {}, [], 0, node_slacks.start
+        for k in range(n + 1):
+            last = k == n
+            phase = phase_of[min(k, n - 1)]
+            first = k in set(firsts.tolist()) and not last
+            key = (last, k in linked, first, tuple(map(id, hard[k])), tuple(map(id, soft[k])),
+                   tuple(id(e) for _, e in costs[k]))
+            if key not in functions:
+                duration = None if nt else float(ocp.durations[phase])
+                functions[key] = self._stage_function(last, k in linked, first, hard[k], soft[k], costs[k], duration)
+            fun, lower, upper = functions[key]
+            n_e = sum(c.expr.numel() for c in soft[k])
+            local = (np.arange(k * stage, k * stage + nx + nt) if last else
+                     np.arange(k * stage, (k + 1) * stage + nx + nt))
+            columns = np.concatenate([local, np.arange(slack, slack + n_e)]).astype(int)
+            slack += n_e
+            hs = 1.0 / ocp.N[phase] if nt else float(ocp.durations[phase]) / ocp.N[phase]
+            self.stages.append(Stage(k, fun, columns, slice(row, row + lower.size), hs, lower, upper))
+            row += lower.size
+
+        # -- the NLP in MX: stages alike evaluated by one mapped call ---------------------------
         w = ca.MX.sym("w", L.size)
         par = ca.MX.sym("par", offset)
-        blocks = ca.reshape(w[:n * stage], stage, n)
-        last = w[n * stage:n * stage + nx + nt]
-        X = ca.horzcat(blocks[:nx, :], last[:nx])
-        U = blocks[nx + nt:nx + nt + nu, :]
-        S = blocks[nx + nt + nu:, :]
-        per_interval = np.concatenate([np.full(Ni, 1.0 / Ni) for Ni in ocp.N])
-        phase_of = np.repeat(np.arange(len(ocp.N)), ocp.N)
-        firsts = L.first_nodes
-        if nt:
-            TAU = ca.horzcat(blocks[nx, :], last[nx])
-            h = TAU[:, :-1] * ca.DM(per_interval).T
-            durations = ca.vertcat(*[TAU[0, int(k)] for k in firsts])
-        else:
-            durations = ca.DM([float(t) for t in ocp.durations])
-            h = ca.DM(np.array([float(ocp.durations[i]) for i in phase_of]) * per_interval).T
         p = par[params["p"]]
         q = ca.vertcat(*[par[params[name]] for name in ocp.parameters]) if ocp.parameters else ca.MX(0, 1)
         v = ca.vertcat(*[w[variables[name]] for name in ocp.variables]) if ocp.variables else ca.MX(0, 1)
-
-        # -- one SX Function per interval, mapped ----------------------------------------------
-        qs = ca.vertcat(*ocp.parameters.values()) if ocp.parameters else ca.SX(0, 1)
-        vs = ca.vertcat(*[sym for sym, *_ in ocp.variables.values()]) if ocp.variables else ca.SX(0, 1)
-        xs, us, ps = ocp.x, ocp.u, ocp.p
-        xn, hs = ca.SX.sym("x_next", nx), ca.SX.sym("h")
-        ss = ca.SX.sym("s", n_soft_path)
-        gap = xn - m.interval(ocp.substeps)(xs, us, hs, ps)
-        hard = ca.vertcat(*[c.expr for c in hard_path]) if hard_path else ca.SX(0, 1)
-        soft_rows, soft_lb, soft_ub, soft_cost, soft_res = _soft_rows(soft_path, ss)
-        general_path = sum((e for kind, e, at in ocp.costs if kind == "general" and at == "path"), ca.SX(0))
-        lsq_path = [e for kind, e, at in ocp.costs if kind == "lsq" and at == "path"]
-        res_path = ca.sqrt(hs) * ca.vertcat(*lsq_path) if lsq_path else ca.SX(0, 1)
-        interval = ca.Function("interval", [xs, us, xn, hs, ps, qs, vs, ss],
-                               [ca.vertcat(gap, hard, soft_rows), hs * general_path + soft_cost,
-                                ca.vertcat(res_path, soft_res)],
-                               ["x", "u", "x_next", "h", "p", "q", "v", "s"], ["g", "l", "r"])
-        g_int, l_int, r_int = interval.map(n)(X[:, :-1], U, X[:, 1:], h, p, q, v, S)
-        lb_int = np.concatenate([np.zeros(nx), *[c.lower for c in hard_path], soft_lb])
-        ub_int = np.concatenate([np.zeros(nx), *[c.upper for c in hard_path], soft_ub])
-        # rows in stage order (each node's own conditions, then its interval's gap and path rows), which
-        # structure-exploiting solvers need
-        rows = {k: [] for k in range(n + 1)}  # node -> [(expression, lower, upper)]
-        linked = {k for k in range(n) if k + 1 == n or phase_of[k + 1] == phase_of[k]} if nt else set()
-        columns = ca.horzsplit(g_int)
-        for k in range(n):
-            rows[k].append((columns[k], lb_int, ub_int))
-            if k in linked:  # a phase's duration is the same at each of its nodes
-                rows[k].append((TAU[0, k + 1] - TAU[0, k], np.zeros(1), np.zeros(1)))
-        general = [ca.sum2(l_int), ocp.time_weight * ca.sum1(durations)]
-        residuals = [ca.vec(r_int)]
-
-        def at_node(expr, k):
-            uk = U[:, k] if k < n else ca.MX.zeros(nu)
-            return ca.Function("node", [xs, us, ps, qs, vs], [expr])(X[:, k], uk, p, q, v)
-
-        # path constraints without controls also hold at the last node
-        node_terms = [(c, "end") for c in hard_path if not ca.depends_on(c.expr, us)]
-        node_terms += [(c, at) for c, at in ocp.constraints if at != "path" and c.soft is None]
-        for c, at in node_terms:
-            k = self._node(at, firsts, n)
-            rows[k].insert(0 if k < n else len(rows[k]), (at_node(c.expr, k), c.lower, c.upper))
-        slack = node_slacks.start
-        for c, at in node_soft:
-            k = self._node(at, firsts, n)
-            s = w[slack:slack + c.expr.numel()]
-            slack += c.expr.numel()
-            soft, lb, ub, cost, res = _soft_rows([c], s, at_node(c.expr, k))
-            rows[k].append((soft, lb, ub))
-            general.append(cost)
-            residuals.append(res)
-        ordered = [r for k in range(n + 1) for r in rows[k]]
-        g_parts = [e for e, _, _ in ordered]
-        lbg = [np.broadcast_to(lo, (e.numel(),)) for e, lo, _ in ordered]
-        ubg = [np.broadcast_to(hi, (e.numel(),)) for e, _, hi in ordered]
-        for kind, e, at in ocp.costs:
-            if at != "path":
-                (general if kind == "general" else residuals).append(at_node(e, self._node(at, firsts, n)))
+        c_of, l_of, r_of = {}, {}, {}
+        for fun, group in self.groups():
+            Y = ca.reshape(w[np.concatenate([st.columns for st in group]).tolist()], group[0].columns.size,
+                           len(group))
+            C, Lc, R = fun.map(len(group))(Y, v, p, q, ca.DM([st.hs for st in group]).T)
+            for j, st in enumerate(group):
+                c_of[st.index], l_of[st.index], r_of[st.index] = C[:, j], Lc[:, j], R[:, j]
         self.w, self.par = w, par
-        self.g = ca.vertcat(*g_parts)
-        self.lbg, self.ubg = np.concatenate(lbg), np.concatenate(ubg)
-        self.general = sum(general[1:], general[0])
-        self.residuals = ca.vertcat(*residuals)
+        self.g = ca.vertcat(*[c_of[k] for k in range(n + 1)])
+        self.lbg = np.concatenate([st.lower for st in self.stages])
+        self.ubg = np.concatenate([st.upper for st in self.stages])
+        self.general = ca.sum1(ca.vertcat(*[l_of[k] for k in range(n + 1)]))
+        self.residuals = ca.vertcat(*[r_of[k] for k in range(n + 1)])
         self.f = self.general + 0.5 * ca.sumsqr(self.residuals)
         self.lbw, self.ubw = self._variable_bounds(phase_of)
-        self.interval_function = interval
+        self.global_columns = np.concatenate([np.arange(sl.start, sl.stop) for sl in variables.values()]
+                                             ).astype(int) if variables else np.zeros(0, int)
+
+    def groups(self):
+        """Stages that share a Function, as ``(function, [stages])`` in order of first appearance."""
+        out = {}
+        for st in self.stages:
+            out.setdefault(id(st.function), (st.function, []))[1].append(st)
+        return list(out.values())
+
+    def _stage_function(self, last, linked, first, hard, soft, costs, duration):
+        """The SX Function ``(y, v, p, q, hs) -> (c, l, r)`` of one kind of stage, with the bounds of ``c``."""
+        ocp, S = self.ocp, self._symbols
+        m = ocp.model
+        e = ca.SX.sym("e", sum(c.expr.numel() for c in soft))
+        h = S.tau[0] * S.hs if S.tau.numel() else S.hs
+        rows = [(c.expr, c.lower, c.upper) for c in hard]
+        general = [ca.SX(0)]
+        residuals = []
+        if not last:
+            gap = S.x_next - m.interval(ocp.substeps)(ocp.x, ocp.u, h, ocp.p)
+            rows.append((gap, np.zeros(m.nx), np.zeros(m.nx)))
+            rows += [(c.expr, c.lower, c.upper) for c in self._hard_path]
+            soft_rows, lb, ub, cost, res = _soft_rows(self._soft_path, S.s)
+            rows.append((soft_rows, lb, ub))
+            general += [h * sum((x for kind, x, at in ocp.costs if kind == "general" and at == "path"), ca.SX(0)),
+                        cost]
+            lsq = [x for kind, x, at in ocp.costs if kind == "lsq" and at == "path"]
+            residuals += [ca.sqrt(h) * x for x in lsq] + [res]
+            if linked:  # a phase's duration is the same at each of its nodes
+                rows.append((S.tau_next - S.tau, np.zeros(1), np.zeros(1)))
+        if first:
+            general.append(ocp.time_weight * (S.tau[0] if S.tau.numel() else duration))
+        soft_rows, lb, ub, cost, res = _soft_rows(soft, e)
+        rows.append((soft_rows, lb, ub))
+        general.append(cost)
+        residuals.append(res)
+        general += [x for kind, x in costs if kind == "general"]
+        residuals += [x for kind, x in costs if kind == "lsq"]
+        y = ca.vertcat(ocp.x, S.tau, e) if last else ca.vertcat(ocp.x, S.tau, ocp.u, S.s, S.x_next, S.tau_next, e)
+        c = ca.vertcat(*[r[0] for r in rows])
+        lower = np.concatenate([np.broadcast_to(r[1], (r[0].numel(),)) for r in rows])
+        upper = np.concatenate([np.broadcast_to(r[2], (r[0].numel(),)) for r in rows])
+        fun = ca.Function("last_node" if last else "stage", [y, S.v, ocp.p, S.q, S.hs],
+                          [c, sum(general[1:], general[0]), ca.vertcat(*residuals) if residuals else ca.SX(0, 1)],
+                          ["y", "v", "p", "q", "hs"], ["c", "l", "r"])
+        return fun, lower, upper
 
     @staticmethod
     def _node(at, firsts, n) -> int:
@@ -351,3 +409,16 @@ def _soft_rows(constraints: list[Constraint], slacks, values=None):
     cost = ca.dot(ca.DM(l1), slacks)
     residual = ca.DM(np.sqrt(l2)) * slacks if np.any(l2 > 0) else slacks[0:0]
     return rows, lb, ub, cost, residual
+
+
+class _Symbols:
+    """The SX symbols of one stage besides the OCP's own (duration, slacks, next node, scale, globals)."""
+
+    def __init__(self, ocp: OCP, nt: int, n_soft_path: int):
+        self.tau = ca.SX.sym("tau", nt)
+        self.tau_next = ca.SX.sym("tau_next", nt)
+        self.x_next = ca.SX.sym("x_next", ocp.model.nx)
+        self.s = ca.SX.sym("s", n_soft_path)
+        self.hs = ca.SX.sym("hs")
+        self.q = ca.vertcat(*ocp.parameters.values()) if ocp.parameters else ca.SX(0, 1)
+        self.v = ca.vertcat(*[sym for sym, *_ in ocp.variables.values()]) if ocp.variables else ca.SX(0, 1)

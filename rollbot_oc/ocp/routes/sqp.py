@@ -25,7 +25,8 @@ import time
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.errors import ConfigError, interruptible
+from rollbot_oc.ocp.linearisation import StructuredLinearisation
 from rollbot_oc.ocp.solution import OCPSolution
 
 __all__ = ["SQPRoute", "RTIRoute"]
@@ -65,21 +66,12 @@ class SQPRoute:
             raise ConfigError(f"max_iter = {max_iter!r} must be a whole number >= 1")
         self.transcription = tr = transcription
         self.max_iter, self.tol, self.line_search = max_iter, tol, line_search
-        w, par = tr.w, tr.par
-        n = w.numel()
-        J = ca.jacobian(tr.g, w)
-        Jr = ca.jacobian(tr.residuals, w)
-        H = ca.mtimes(Jr.T, Jr) + ca.hessian(tr.general, w)[0] + regularisation * ca.MX.eye(n)
-        grad = ca.gradient(tr.general, w) + ca.mtimes(Jr.T, tr.residuals)
-        lin = ca.Function("ocp_linearisation", [w, par], [H, grad, tr.g, J, tr.f],
-                          ["w", "par"], ["H", "grad", "g", "J", "f"])
-        merit = ca.Function("ocp_cost_constraints", [w, par], [tr.f, tr.g], ["w", "par"], ["f", "g"])
-        if compiled or compiled is None:
-            from rollbot_oc.codegen import compiled as compile_function, compiler
+        if compiled is None:
+            from rollbot_oc.codegen import compiler
 
-            if compiled or compiler() is not None:
-                lin, merit = compile_function(lin), compile_function(merit)
-        self.linearisation, self.merit = lin, merit
+            compiled = compiler() is not None
+        self.linearisation = StructuredLinearisation(tr, regularisation, compiled)
+        self.merit = self.linearisation.cost_and_constraints
         opts = {"error_on_fail": False}
         if qp_solver == "qrqp":
             opts.update(print_iter=False, print_header=False, max_iter=1000)
@@ -87,21 +79,22 @@ class SQPRoute:
             opts.update(osqp={"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 20000, "polish": True})
         opts.update(qp_options or {})
         self.qp_solver = qp_solver
-        self.qp = ca.conic("ocp_qp", qp_solver, {"h": H.sparsity(), "a": J.sparsity()}, opts)
+        self.qp = ca.conic("ocp_qp", qp_solver, {"h": self.linearisation.H_sparsity,
+                                                  "a": self.linearisation.J_sparsity}, opts)
 
     # -- one QP ---------------------------------------------------------------------------------
     def _qp_step(self, w, lam_w, lam_g, par):
         """The QP at ``w``: returns ``(d, lam_w, lam_g, ok, status, f, g, grad)``."""
         tr = self.transcription
         H, grad, g, J, f = self.linearisation(w, par)
-        g = np.array(g).ravel()
-        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(np.array(grad))) and np.all(np.isfinite(J.nonzeros()))):
+        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(grad)) and np.all(np.isfinite(np.array(J.nonzeros())))):
             return None, lam_w, lam_g, False, "non-finite linearisation", float(f), g, None
         args = dict(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=tr.lbw - w, ubx=tr.ubw - w)
         if lam_w is not None:
             args.update(lam_x0=lam_w, lam_a0=lam_g)
         try:
-            sol = self.qp(**args)
+            with interruptible("QP solve"):
+                sol = self.qp(**args)
         except RuntimeError as exc:  # an ill-posed QP is a failed step, not a crash
             return None, lam_w, lam_g, False, f"QP error: {str(exc).splitlines()[-1][:80]}", float(f), g, None
         stats = self.qp.stats()
@@ -132,7 +125,7 @@ class SQPRoute:
                 return w, lam_w, lam_g, "step", True, it
             if np.abs(alpha * d).max(initial=0.0) < self.tol:
                 _f, g_new = self.merit(w, par)
-                if self._violation(np.array(g_new).ravel()) < self.tol * max(1, g.size):
+                if self._violation(g_new) < self.tol * max(1, g.size):
                     return w, lam_w, lam_g, "converged", True, it
         return w, lam_w, lam_g, status, ok, it
 
@@ -145,7 +138,7 @@ class SQPRoute:
         alpha = 1.0
         for _ in range(16):
             f_new, g_new = self.merit(w + alpha * d, par)
-            if float(f_new) + nu * self._violation(np.array(g_new).ravel()) <= phi0 + 1e-4 * alpha * slope:
+            if f_new + nu * self._violation(g_new) <= phi0 + 1e-4 * alpha * slope:
                 return alpha
             alpha *= 0.5
         return alpha
@@ -183,7 +176,13 @@ class SQPRoute:
         n, m = tr.w.numel(), tr.g.numel()
         w, lw, lg, par = ca.MX.sym("w", n), ca.MX.sym("lam_w", n), ca.MX.sym("lam_g", m), ca.MX.sym("par",
                                                                                                    tr.par.numel())
-        H, grad, g, J, _f = self.linearisation(w, par)
+        J = ca.jacobian(tr.g, tr.w)
+        Jr = ca.jacobian(tr.residuals, tr.w)
+        H = ca.mtimes(Jr.T, Jr) + ca.hessian(tr.general, tr.w)[0] + ca.diag(self.linearisation.regularisation)
+        grad = ca.gradient(tr.general, tr.w) + ca.mtimes(Jr.T, tr.residuals)
+        lin = ca.Function("ocp_linearisation", [tr.w, tr.par], [ca.project(H, self.linearisation.H_sparsity), grad,
+                                                                 tr.g, ca.project(J, self.linearisation.J_sparsity)])
+        H, grad, g, J = lin(w, par)
         sol = self.qp(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=tr.lbw - w, ubx=tr.ubw - w,
                       lam_x0=lw, lam_a0=lg)
         return ca.Function("ocp_sqp_step", [w, lw, lg, par], [w + sol["x"], sol["lam_x"], sol["lam_a"]],

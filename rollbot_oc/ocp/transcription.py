@@ -291,12 +291,18 @@ class Transcription:
         m = ocp.model
         e = ca.SX.sym("e", sum(c.expr.numel() for c in soft))
         h = S.tau[0] * S.hs if S.tau.numel() else S.hs
-        rows = [(c.expr, c.lower, c.upper) for c in hard]
+        # rows: the continuity gaps first (the dynamics block of structure-exploiting QP solvers), then
+        # the node's own conditions, the path constraints and the soft rows
+        rows = []
         general = [ca.SX(0)]
         residuals = []
         if not last:
             gap = S.x_next - m.interval(ocp.substeps)(ocp.x, ocp.u, h, ocp.p)
             rows.append((gap, np.zeros(m.nx), np.zeros(m.nx)))
+            if linked:  # a phase's duration is the same at each of its nodes
+                rows.append((S.tau_next - S.tau, np.zeros(1), np.zeros(1)))
+        rows += [(c.expr, c.lower, c.upper) for c in hard]
+        if not last:
             rows += [(c.expr, c.lower, c.upper) for c in self._hard_path]
             soft_rows, lb, ub, cost, res = _soft_rows(self._soft_path, S.s)
             rows.append((soft_rows, lb, ub))
@@ -304,8 +310,6 @@ class Transcription:
                         cost]
             lsq = [x for kind, x, at in ocp.costs if kind == "lsq" and at == "path"]
             residuals += [ca.sqrt(h) * x for x in lsq] + [res]
-            if linked:  # a phase's duration is the same at each of its nodes
-                rows.append((S.tau_next - S.tau, np.zeros(1), np.zeros(1)))
         if first:
             general.append(ocp.time_weight * (S.tau[0] if S.tau.numel() else duration))
         soft_rows, lb, ub, cost, res = _soft_rows(soft, e)

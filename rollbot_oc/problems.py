@@ -24,6 +24,8 @@ Schema (TOML; SI units, degrees only in keys ending in ``_deg``)::
 
     [waypoints]                          # kind = "waypoints": stop at each point in turn
     stops = [[0.0, 0.0], [0.0, 1.2]]     # m
+    stop_tolerance = 0.07                # m: a stop is reached within this, at rest (speed < 5 mm/s,
+                                         # driving speed < 0.05 rad/s) for 0.5 s
 
     [open_loop]                          # kind = "open_loop": constant driving speeds
     speeds    = [0.5, 1.0, 3.0]          # rad/s
@@ -54,8 +56,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rollbot_oc.control.missions import Circle, Waypoints, centre_of_curvature
-from rollbot_oc.dynamics import rest_state
+from rollbot_oc.control.missions import (
+    STOP_TOLERANCE, Circle, StopRule, Waypoints, centre_of_curvature, reached_stops,
+)
+from rollbot_oc.dynamics import OMEGA, rest_state
 from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.params import RollbotParams, read_toml
 from rollbot_oc.simulate import Sensor, SimulationResult, simulate
@@ -76,7 +80,7 @@ _TABLE_KEYS = {
     "start": {"position", "heading_deg"},
     "floor": {"slope_deg", "slope_dir_deg"},
     "circle": {"centre", "radius", "settle_time", "reach_tolerance"},
-    "waypoints": {"stops"},
+    "waypoints": {"stops", "stop_tolerance"},
     "open_loop": {"speeds", "ramp_rate"},
     "sensor": {"position_noise", "angle_noise", "gyro_noise", "speed_noise", "latency"},
 }
@@ -296,7 +300,8 @@ def problem_from_dict(data: dict, source: str = "<problem>", base: RollbotParams
         tol = _number(table, "reach_tolerance", where, 1e-3, 10.0, default=0.05)
         return Problem(mission=Circle(centre, radius), settle_time=settle, reach_tolerance=tol, **common)
     if kind == "waypoints":
-        return Problem(mission=Waypoints(tuple(_points(table, "stops", where))), **common)
+        tolerance = _number(table, "stop_tolerance", where, 1e-3, 1.0, default=STOP_TOLERANCE)
+        return Problem(mission=Waypoints(tuple(_points(table, "stops", where)), stop_tolerance=tolerance), **common)
     speeds = table.get("speeds")
     if not (isinstance(speeds, list) and speeds):
         raise ConfigError(f"{where}: key 'speeds' = {speeds!r} must be a non-empty list of driving speeds in rad/s")
@@ -475,7 +480,10 @@ def _circle_metrics(problem: Problem, circle: Circle, result: SimulationResult) 
 
 
 def _waypoint_metrics(problem: Problem, waypoints: Waypoints, result: SimulationResult) -> dict:
-    stops = result.info.get("stops", [])
+    """Stops reached by the true trajectory (``StopRule``: near the waypoint and at rest for 0.5 s), in order."""
+    centre_speed = problem.params.R * np.hypot(result.x[OMEGA][0], result.x[OMEGA][1])
+    stops = reached_stops(result.t, result.position, centre_speed, result.driving_speed, waypoints.stops,
+                          StopRule(tolerance=waypoints.stop_tolerance))
     errors = [float(stop["error"]) for stop in stops]
     out = {"stop_errors": errors, "stop_times": [float(stop["time"]) for stop in stops]}
     if len(stops) == len(waypoints.stops):

@@ -47,13 +47,13 @@ from dataclasses import dataclass, field, replace
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.control.missions import Circle, Waypoints
+from rollbot_oc.control.missions import Circle, StopMonitor, StopRule, Waypoints
 from rollbot_oc.control.ocp import (
     NP, OCPSettings, OrbitEntry, RestToRest, SolveFailed, interval_function, stage_function,
 )
 from rollbot_oc.codegen import compiled, compiler
 from rollbot_oc.errors import interruptible
-from rollbot_oc.dynamics import NZ, reduced_model, to_reduced
+from rollbot_oc.dynamics import NZ, REDUCED, reduced_model, to_reduced
 from rollbot_oc.fastcall import FastFunction
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
 from rollbot_oc.simulate import Command, Observation
@@ -151,7 +151,9 @@ class NMPCSettings:
     rest_speed : float
         Shell angular speed below which a stopped robot is at rest, rad/s.
     hold_time : float
-        Longest wait at a stop after its plan ends, s.
+        How long after a leg's plan ends a robot at rest away from its stop
+        waits before it gets a new leg to the same stop, s (it never moves on
+        from a stop it has not reached).
     plan_slack : float
         The tracked plans take this fraction longer than the fastest ones, and
         spend the spare time on a smoother motor profile (least effort) on the
@@ -600,6 +602,7 @@ class NMPC:
         if any(not w.stop for w in getattr(mission, "points", ())):
             raise ValueError("the NMPC plans stops; pass-through waypoints are for the PID's waypoint layer")
         self.mission = mission
+        self._rule = StopRule(tolerance=getattr(mission, "stop_tolerance", StopRule.tolerance))
         self.params = params or RollbotParams()
         self.dt = dt
         self.settings = s = settings or NMPCSettings()
@@ -631,13 +634,10 @@ class NMPC:
         if isinstance(self.mission, Waypoints):
             segments, z = [], to_reduced(x0)
             for stop in self.mission.stops:
-                fastest = _rest_to_rest(level, settings).solve(z, stop)
-                T, N = self._grid(fastest.T)
-                plan = _rest_to_rest(level, replace(settings, N=N)).solve(z, stop, guess=fastest, duration=T)
-                plan.extra["fastest"] = fastest.T
+                plan = self._leg(z, stop)
                 segments.append((plan, {"stop": stop}))
                 z = plan.z[:, -1].copy()
-                z[6:10] = 0.0
+                z[REDUCED.velocity] = 0.0
             self.reference = Reference(segments)
         else:
             # The minimum-time entry takes hundreds of IPOPT iterations (3.3 to 4.6 s for the paper's
@@ -680,7 +680,9 @@ class NMPC:
         self._pid_fresh = True
         self.stops: list[dict] = []
         self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0, "late": 0,
-                    "failed": 0, "tilt": []}
+                    "failed": 0, "tilt": [], "replans": 0}
+        self._monitor = None
+        self._pid_goal = None
         self._done = False
         self.estimator.reset()
 
@@ -699,16 +701,17 @@ class NMPC:
         seen = int(round(obs.t / dt))
         self._estimate(seen, z_meas)
         z = self._predict_to_now(z_meas, seen, k)
-        if k % self.every == 0:  # stops are checked at the solve instants, so legs start on the grid
-            self._advance_mission(t_now, obs)
+        reached = self._watch_stop(obs)
+        if k % self.every == 0:  # stops are left at the solve instants, so legs start on the grid
+            self._advance_mission(t_now, obs, reached, z)
         if self._done:
             return self._issue(k, 0.0)
         if t_now < self.pid_until:
-            return self._pid_command(k, obs)
+            return self._pid_command(k, obs, z)
         if k % self.every == 0 or self.current is None:
             self._replan(z, t_now, k)
             if self.current is None:  # the PID took over
-                return self._pid_command(k, obs)
+                return self._pid_command(k, obs, z)
         U, k_solved = self.current
         return self._issue(k, float(U[min((k - k_solved) // self.every, len(U) - 1)]))
 
@@ -732,21 +735,35 @@ class NMPC:
             z = self.estimator.step(z, self.commands.get(j, 0.0), p)[0].copy()
         return z
 
-    def _advance_mission(self, t_now: float, obs: Observation):
+    def _watch_stop(self, obs: Observation) -> bool:
+        """Feed the current stop's monitor (``StopRule``: near it and at rest for 0.5 s); True once reached."""
+        if self.reference is None or isinstance(self.mission, Circle) or self._done:
+            return False
+        if self._monitor is None:
+            self._monitor = StopMonitor(self.reference.segments[self.segment][1]["stop"], self._rule)
+        centre_speed = self.params.R * math.hypot(obs.omega[0], obs.omega[1])
+        return self._monitor.update(obs.t, obs.position, centre_speed, obs.theta_dot)
+
+    def _advance_mission(self, t_now: float, obs: Observation, reached: bool, z):
+        """Leave a stop once it is reached; if the robot came to rest away from it, plan a new leg to it."""
         if self.reference is None or isinstance(self.mission, Circle):
             return
         plan, info = self.reference.segments[self.segment]
         local = t_now - self.segment_start
-        at_rest = np.linalg.norm(obs.omega) < self.settings.rest_speed and abs(obs.theta_dot) < 0.05
-        if local >= plan.T and (at_rest or local >= plan.T + self.settings.hold_time):
-            stop = np.asarray(info["stop"], float)
-            self.stops.append({"point": stop.tolist(), "time": t_now,
-                               "error": float(np.linalg.norm(obs.position - stop))})
+        if reached and local >= plan.T - 1e-9:
+            self.stops.append(self._monitor.record(obs.position))
             self.segment += 1
             self.segment_start = t_now
-            self.warm, self.current = None, None
+            self.warm, self.current, self._monitor = None, None, None
             if self.segment >= len(self.reference.segments):
                 self._done = True
+            return
+        if local >= plan.T + self.settings.hold_time and self._monitor is not None and self._monitor.settled_away:
+            # never move on from here: plan a new leg to the same stop from where the robot is
+            self.reference.segments[self.segment] = (self._leg(z, info["stop"]), info)
+            self.segment_start = t_now
+            self.warm, self.current = None, None
+            self.log["replans"] += 1
 
     def _replan(self, z, t_now: float, k: int):
         s = self.settings
@@ -785,17 +802,38 @@ class NMPC:
         Us = np.concatenate([U[1:], U[-1:]])
         return np.concatenate([Zs.T.ravel(), Us])
 
-    def _pid_command(self, k: int, obs: Observation) -> Command:
-        if self._pid is None:
+    def _pid_command(self, k: int, obs: Observation, z) -> Command:
+        """The paper's PID on the current goal (the stop in progress, or the circle), as a speed command.
+
+        The plant's speed loop turns the speed into an acceleration with the current driving speed; the
+        NMPC's own record of the command (for its delay compensation) uses the predicted driving speed.
+        """
+        goal = self.segment if isinstance(self.mission, Waypoints) else -1
+        if self._pid is None or self._pid_goal != goal:
             from rollbot_oc.control.pid import QuasiStablePID
 
-            self._pid = QuasiStablePID(self.mission, self.params, dt=self.dt, radius_map=self.map)
+            mission = self.mission if goal < 0 else Waypoints(
+                (self.reference.segments[self.segment][1]["stop"],), stop_tolerance=self.mission.stop_tolerance)
+            self._pid, self._pid_goal, self._pid_fresh = QuasiStablePID(
+                mission, self.params, dt=self.dt, radius_map=self.map), goal, True
         if self._pid_fresh:  # take over smoothly from the current driving speed
             self._pid.reset()
-            self._pid.omega_cmd = max(obs.theta_dot, 0.0)
+            self._pid.omega_cmd = max(float(z[REDUCED.theta_dot]), 0.0)
             self._pid_fresh = False
-        cmd = self._pid(obs)
-        return self._issue(k, cmd.acceleration(obs.theta_dot, self.dt))
+        speed = self._pid(obs).speed
+        self.commands[k] = (speed - float(z[REDUCED.theta_dot])) / self.dt
+        self.commands.pop(k - 50, None)
+        return Command(speed=speed)
+
+    def _leg(self, z, stop):
+        """A leg from the reduced state ``z`` to rest at ``stop``, on the NMPC's grid (see ``prepare``)."""
+        level = self.params.replace(slope=0.0)
+        settings = self.settings.plan
+        fastest = _rest_to_rest(level, settings).solve(z, stop)
+        T, N = self._grid(fastest.T)
+        plan = _rest_to_rest(level, replace(settings, N=N)).solve(z, stop, guess=fastest, duration=T)
+        plan.extra["fastest"] = fastest.T
+        return plan
 
     def report(self) -> dict:
         """Solve-time statistics (s), solver statuses, fallback counts, stops and plans."""
@@ -818,6 +856,7 @@ class NMPC:
             "fallback_shifted": self.log["fallback_shifted"],
             "fallback_pid": self.log["fallback_pid"],
             "plan_time": self.plan_time,
+            "stop_replans": self.log["replans"],
             "plans": plans,
             "plan_duration": float(sum(seg[0].T for seg in self.reference.segments)) if self.reference else None,
             "tilt_estimate": self.estimator.tilt.tolist(),

@@ -149,8 +149,8 @@ class QuasiStablePID:
         return self.layer.done
 
     def report(self) -> dict:
-        """Stop records of the waypoint layer."""
-        return {"stops": list(self.layer.stops)}
+        """Stop records of the waypoint layer and its repeated approaches."""
+        return {"stops": list(self.layer.stops), "stop_retries": self.layer.retries}
 
     def __call__(self, obs: Observation) -> Command:
         g, dt = self.gains, self.dt
@@ -159,8 +159,8 @@ class QuasiStablePID:
         measured_speed = min(max(obs.theta_dot, 0.0), self.map.omega_max)
         radius = float(self.map.radius(measured_speed))
         centre = centre_of_curvature(obs.position, heading, radius)
-        shell_rate = float(np.linalg.norm(obs.omega))
-        target = self.layer.target(obs.t, obs.position, heading, centre, self.omega_cmd, shell_rate)
+        centre_speed = self.params.R * math.hypot(obs.omega[0], obs.omega[1])
+        target = self.layer.target(obs.t, obs.position, heading, centre, self.omega_cmd, centre_speed, obs.theta_dot)
         if target.braking:
             self.omega_cmd = max(0.0, self.omega_cmd - self.layer.predictor.decel * dt)
             self.integral[:] = 0.0

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rollbot_oc.control.missions import Circle, Waypoints
+from rollbot_oc.control.missions import STOP_TOLERANCE, Circle, StopMonitor, StopRule, Waypoints
 from rollbot_oc.quasi_stable import RadiusMap
 
 __all__ = ["StopPredictor", "Target", "WaypointLayer"]
@@ -110,19 +110,22 @@ class WaypointLayer:
     align_tolerance : float
         How close (m) the centre must be to its target, and the predicted rest
         point to the waypoint, before braking may start.
-    rest_speed : float
-        Shell angular speed (rad/s) below which a stopped robot counts as at rest.
+
+    A stop is left only once it is reached by the mission's ``StopRule``
+    (within ``stop_tolerance`` and at rest for 0.5 s); coming to rest away
+    from it starts a new approach of the same stop (counted in ``retries``).
     """
 
     def __init__(self, mission, radius_map: RadiusMap, *, stop_radius: float = 0.2, decel: float = 1.0,
-                 align_tolerance: float = 0.02, rest_speed: float = 0.02):
+                 align_tolerance: float = 0.02):
         if not isinstance(mission, (Circle, Waypoints)):
             raise ValueError(f"mission must be a Circle or Waypoints, got {type(mission).__name__}")
         if not radius_map.R_min < stop_radius < radius_map.R_max:
             raise ValueError(f"stop_radius = {stop_radius} m is out of range: valid is "
                              f"({radius_map.R_min:.3f}, {radius_map.R_max:.3f}) m")
         self.mission, self.radius_map = mission, radius_map
-        self.stop_radius, self.align_tolerance, self.rest_speed = stop_radius, align_tolerance, rest_speed
+        self.stop_radius, self.align_tolerance = stop_radius, align_tolerance
+        self.rule = StopRule(tolerance=getattr(mission, "stop_tolerance", STOP_TOLERANCE))
         self.predictor = StopPredictor(radius_map, decel)
         self.reset()
 
@@ -133,6 +136,8 @@ class WaypointLayer:
         self.stops: list[dict] = []
         self._last_miss = math.inf
         self._goal = None  # centre target of the current stop, chosen when its leg starts
+        self._monitor = None
+        self.retries = 0
 
     @property
     def done(self) -> bool:
@@ -147,7 +152,8 @@ class WaypointLayer:
         direction = away / norm if norm > 1e-9 else np.array([1.0, 0.0])
         return wp_point + rho * direction
 
-    def target(self, t: float, position, heading: float, centre, omega0: float, shell_rate: float) -> Target:
+    def target(self, t: float, position, heading: float, centre, omega0: float, centre_speed: float,
+               driving_speed: float) -> Target:
         """The target for this step.
 
         Parameters
@@ -162,8 +168,10 @@ class WaypointLayer:
             Current centre of curvature estimate o, m.
         omega0 : float
             Current driving-speed command, rad/s.
-        shell_rate : float
-            Magnitude of the shell's angular velocity, rad/s (to detect rest).
+        centre_speed : float
+            Measured shell-centre speed, m/s (to detect rest).
+        driving_speed : float
+            Measured driving speed, rad/s (to detect rest).
         """
         mission = self.mission
         if isinstance(mission, Circle):
@@ -185,11 +193,16 @@ class WaypointLayer:
             return Target(self._goal, self.stop_radius, braking=self.phase == "braking")
         if self.phase == "braking" and omega0 <= 0.0:
             self.phase = "resting"
+            self._monitor = StopMonitor(wp.point, self.rule)
         target = Target(self._goal, self.stop_radius, braking=True)
-        if self.phase == "resting" and shell_rate < self.rest_speed:
-            error = float(np.linalg.norm(np.asarray(position) - wp.point))
-            self.stops.append({"point": wp.point.tolist(), "time": t, "error": error})
-            self._advance()
+        if self.phase == "resting":
+            if self._monitor.update(t, position, centre_speed, driving_speed):
+                self.stops.append(self._monitor.record(position))
+                self._advance()
+            elif self._monitor.settled_away:
+                # at rest away from the stop: never move on from here, approach the same stop again
+                self.phase, self._goal, self._last_miss = "track", None, math.inf
+                self.retries += 1
         return target
 
     def _pass_target(self, wp, position) -> Target:

@@ -228,10 +228,10 @@ def plot_comparison(runs, path=None, title: str | None = None):
         _mark_progress(axt, run)
         axt.set_xlim(0.0, run.result.t[-1])
         axt.set_ylabel(f"{run.controller}\ndriving speed (rad/s)")
+        axt.set_xlabel("time (s)")
         axt.set_title(f"{run.controller}: {run_verdict(run)}", fontsize=9, loc="left")
         axt.grid(alpha=0.3)
         time_axes.append(axt)
-    time_axes[-1].set_xlabel("time (s), each run on its own axis")
     mission = problem.mission
     if problem.kind == "waypoints":
         tx, ty = np.asarray(mission.stops).T

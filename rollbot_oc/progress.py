@@ -89,8 +89,8 @@ class RunProgress:
 
     def __init__(self, duration: float, desc: str, stops: int = 0, show: bool | None = None):
         self.stops = stops
-        self.bar = progress_bar(show=show, desc=desc, total=float(duration), bar_format=self.FORMAT, leave=None)
-        self._postfix(0)
+        self.bar = progress_bar(show=show, desc=desc, total=float(duration), bar_format=self.FORMAT, leave=None,
+                                postfix=f"stops 0/{stops}" if stops else None)
 
     def _postfix(self, reached: int):
         if self.stops:

@@ -290,7 +290,7 @@ def open_loop_text(rows: list[dict], name: str | None = None) -> str:
     for r in rows:
         cells = [number(r["omega0"], ".3f"), number(r["R0"], ".4f")]
         if theory:
-            cells += [number(r.get("R0_theory"), ".4f"), number(r.get("R0_error"), ".3f", scale=100)]
+            cells += [number(r.get("R0_theory"), ".4f"), number(r.get("R0_error"), ".2g", scale=100)]
         cells += [number(r["Omega"], ".4f"), number(r["xi"], ".2f", scale=180 / math.pi),
                   number(r.get("drift"), ".1f", scale=1e3), _cell(r["settled"])]
         table.append(cells)

@@ -17,6 +17,12 @@ radians, ``null`` for what is missing).  Exit status:
 
 Every file a command writes is inside its output folder (``--out``,
 ``--plot``), which is checked and created before anything is computed.
+
+Without ``--json`` a command prints a summary for people
+(``rollbot_oc.summary``) whose first line says whether it worked and how
+well; ``--quiet`` prints nothing but errors.  Long work shows its progress on
+stderr (``rollbot_oc.progress``), only where stderr is a terminal unless
+``--progress`` asks for it.
 """
 
 from __future__ import annotations

@@ -406,7 +406,7 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
     with RunProgress(problem.duration, label, stops, show_progress) as progress:
         start = time.perf_counter()
         result = simulate(problem.initial_state(), problem.duration, params=problem.params,
-                          controller=ctrl, dt=problem.dt, sensor=sensor, progress=progress)
+                          controller=ctrl, dt=problem.dt, sensor=sensor, progress=progress if progress.shown else None)
         wall = time.perf_counter() - start
         progress.finish(float(result.t[-1]), result.info)
     centres = _centres(result, getattr(ctrl, "map", None))

@@ -92,6 +92,11 @@ class RunProgress:
         self.bar = progress_bar(show=show, desc=desc, total=float(duration), bar_format=self.FORMAT, leave=None,
                                 postfix=f"stops 0/{stops}" if stops else None)
 
+    @property
+    def shown(self) -> bool:
+        """Whether the bar is displayed (a hidden one need not be called)."""
+        return not self.bar.disable
+
     def _postfix(self, reached: int):
         if self.stops:
             self.bar.set_postfix_str(f"stops {reached}/{self.stops}", refresh=False)

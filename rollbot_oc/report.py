@@ -66,6 +66,7 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
     from rollbot_oc.quasi_stable import quasi_stable_curve
     from rollbot_oc.scenarios import load_bundled
     from rollbot_oc.stability import stability_curve
+    from rollbot_oc.summary import run_title
 
     out = OutputFolder(out, "out")
     params = params or RollbotParams()
@@ -129,7 +130,7 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
     step("animation of the NMPC run")
     nmpc_run = runs[1]
     animate_run(nmpc_run.result, out / "n_shape_nmpc.gif", centres=nmpc_run.centres, targets=problem.mission.stops,
-                title="N-shape, NMPC", frames=40 if quick else 120)
+                title=run_title(nmpc_run), frames=40 if quick else 120)
 
     step("report")
     q = summary["quasi_stable"]

@@ -17,6 +17,12 @@ radians, ``null`` for what is missing).  Exit status:
 
 Every file a command writes is inside its output folder (``--out``,
 ``--plot``), which is checked and created before anything is computed.
+
+Without ``--json`` a command prints a summary for people
+(``rollbot_oc.summary``) whose first line says whether it worked and how
+well; ``--quiet`` prints nothing but errors.  Long work shows its progress on
+stderr (``rollbot_oc.progress``), only where stderr is a terminal unless
+``--progress`` asks for it.
 """
 
 from __future__ import annotations
@@ -118,10 +124,30 @@ def _failed(message: str) -> int:
     return EXIT_FAILED
 
 
+def _show_progress(args) -> bool | None:
+    """``show_progress`` of the long computations: forced by --progress, off with --quiet, else on a terminal."""
+    return True if args.progress else False if args.quiet else None
+
+
+def _robot(args) -> str:
+    """What the robot is called in titles and summaries."""
+    return f"robot {args.params}" if getattr(args, "params", None) else "prototype"
+
+
+def _emit(args, data, text) -> None:
+    """Print ``data`` as JSON with --json, else ``text()`` (the human summary) unless --quiet."""
+    if getattr(args, "json", False):
+        print(to_json(data))
+    elif not args.quiet:
+        print(text())
+
+
 def _cmd_openloop(args) -> int:
     from rollbot_oc.experiments import OpenLoopMeasurement, check_open_loop, open_loop_run
     from rollbot_oc.plots import plot_top_view
     from rollbot_oc.problems import check_duration
+    from rollbot_oc.progress import progress_bar
+    from rollbot_oc.summary import open_loop_text
 
     params = _params_with_slope(args)
     if args.duration is not None:
@@ -130,7 +156,7 @@ def _cmd_openloop(args) -> int:
         check_open_loop(omega0, params, ramp_rate=args.ramp_rate, duration=args.duration)
     out = output_folder(args.out)
     rows, failures = [], []
-    for omega0 in args.omega0:
+    for omega0 in progress_bar(args.omega0, _show_progress(args), desc="open-loop runs", unit="speed"):
         try:
             measured, result = open_loop_run(omega0, params, duration=args.duration, ramp_rate=args.ramp_rate)
         except NumericalFailure as exc:  # the robot left the no-slip model: a row of nulls, exit status 1
@@ -139,23 +165,16 @@ def _cmd_openloop(args) -> int:
             continue
         rows.append(measured.to_dict())
         if out:
-            plot_top_view(result, title=f"open loop, omega0 = {omega0:g} rad/s", path=out / f"openloop_{omega0:g}.png")
+            plot_top_view(result, title=f"{_robot(args)}, open loop at omega0 = {omega0:g} rad/s\nR0 = "
+                          f"{measured.R0:.4f} m, Omega = {measured.Omega:.3f} rad/s, settled: {measured.settled}",
+                          path=out / f"openloop_{omega0:g}.png")
     if out:
         write_json(out / "openloop.json", {"params": params.to_file_dict(), "runs": rows})
-    if args.json:
-        print(to_json(rows))
-    else:
-        print(f"{'omega0':>8} {'R0 (m)':>9} {'Omega':>9} {'xi (deg)':>9} {'settled':>8}")
-        for r in rows:
-            if r["R0"] is None:
-                print(f"{r['omega0']:8.3f} {'-':>9} {'-':>9} {'-':>9} {str(r['settled']):>8}")
-                continue
-            print(f"{r['omega0']:8.3f} {r['R0']:9.4f} {r['Omega']:9.4f} {math.degrees(r['xi']):9.3f} "
-                  f"{str(r['settled']):>8}")
+    _emit(args, rows, lambda: open_loop_text(rows))
     return _failed("; ".join(failures)) if failures else EXIT_OK
 
 
-def _paper_figures(params, out) -> list:
+def _paper_figures(params, out, robot: str) -> list:
     """Write the quasi-stable and eigenvalue figures for [0, max_speed] into the folder ``out``."""
     import numpy as np
 
@@ -166,22 +185,17 @@ def _paper_figures(params, out) -> list:
     omegas = np.linspace(0.0, params.max_speed, 200)
     curves = {branch: quasi_stable_curve(omegas, params, branch) for branch in ("slow", "fast")}
     paths = [out / "quasi_stable.png", out / "eigenvalues.png"]
-    plot_quasi_stable(curves, path=paths[0])
+    plot_quasi_stable(curves, path=paths[0], robot=robot)
     results = [r for r in stability_of_states(curves["slow"][1:]) if r is not None]
-    plot_eigenvalues(results, path=paths[1])
+    plot_eigenvalues(results, path=paths[1], robot=robot)
     return paths
 
 
-def _report_rows(args, params, plot, rows, header: str, line) -> int:
-    """Write the paper's figures into ``plot`` if given, print the rows as JSON or a table; status 1 if one failed."""
+def _report_rows(args, params, plot, rows, text) -> int:
+    """Write the paper's figures into ``plot`` if given, print the rows (JSON or ``text``); status 1 if one failed."""
     if plot:
-        _paper_figures(params, plot)
-    if args.json:
-        print(to_json(rows))
-    else:
-        print(header)
-        for row in rows:
-            print(line(row) if row["converged"] else f"{row['omega0']:8.3f}  no quasi-stable state found")
+        _paper_figures(params, plot, _robot(args))
+    _emit(args, rows, lambda: text(rows, args.branch))
     failed = [r["omega0"] for r in rows if not r["converged"]]
     if failed:
         return _failed(f"no quasi-stable state on the {args.branch} branch at omega0 = "
@@ -191,59 +205,39 @@ def _report_rows(args, params, plot, rows, header: str, line) -> int:
 
 def _cmd_quasi(args) -> int:
     from rollbot_oc.quasi_stable import quasi_stable_curve
+    from rollbot_oc.summary import quasi_text
 
     params = load_params(args.params)
     plot = output_folder(args.plot, "--plot")
     states = quasi_stable_curve(args.omega0, params, args.branch)
-    return _report_rows(
-        args, params, plot, [s.to_dict() for s in states],
-        f"{'omega0':>8} {'Omega':>9} {'theta0(deg)':>11} {'xi(deg)':>8} {'R0 (m)':>9} {'branch':>6} converged",
-        lambda r: f"{r['omega0']:8.3f} {r['Omega']:9.4f} {math.degrees(r['theta0']):11.3f} "
-                  f"{math.degrees(r['xi']):8.3f} {r['R0']:9.4f} {r['branch']:>6} {r['converged']}")
+    return _report_rows(args, params, plot, [s.to_dict() for s in states], quasi_text)
 
 
 def _cmd_stability(args) -> int:
     from rollbot_oc.quasi_stable import quasi_stable_curve
     from rollbot_oc.stability import stability_of_states, stability_record
+    from rollbot_oc.summary import stability_text
 
     params = load_params(args.params)
     plot = output_folder(args.plot, "--plot")
     states = quasi_stable_curve(args.omega0, params, args.branch)
     rows = [stability_record(s, r) for s, r in zip(states, stability_of_states(states))]
-    return _report_rows(args, params, plot, rows, f"{'omega0':>8} {'Re(l2)':>9} {'Im(l2)':>9} {'tau (s)':>8} stable",
-                        lambda r: f"{r['omega0']:8.3f} {r['lambda2'][0]:9.4f} {r['lambda2'][1]:9.4f} "
-                                  f"{'inf' if r['tau'] is None else format(r['tau'], '.3f'):>8} {r['stable']}")
+    return _report_rows(args, params, plot, rows, stability_text)
 
 
 def _write_run(run, out) -> None:
-    """Trajectory (.npz), metrics (JSON) and the paper-style plots of a closed-loop run, in the folder ``out``."""
-    from rollbot_oc.plots import plot_time_series, plot_top_view
+    """Trajectory (.npz), metrics (JSON) and the plots of a closed-loop run, in the folder ``out``."""
+    from rollbot_oc.plots import save_run_figures
 
     stem = f"{run.problem.name}_{run.controller}"
     run.result.save(out / f"{stem}.npz")
     write_json(out / f"{stem}.json", run.metrics)
-    targets = run.problem.mission.stops if run.problem.kind == "waypoints" else None
-    circle = run.problem.mission if run.problem.kind == "circle" else None
-    title = f"{run.problem.name}, {run.controller}"
-    plot_top_view(run.result, centres=run.centres, targets=targets, circle=circle, title=title,
-                  path=out / f"{stem}_top.png")
-    plot_time_series(run.result, centres=run.centres, title=title, path=out / f"{stem}_time.png")
-
-
-def _print_metrics(metrics: dict) -> None:
-    for key, value in metrics.items():
-        if key != "runs":
-            print(f"{key:>22}: {value}")
-    for row in metrics.get("runs", []):
-        if row["R0"] is None:
-            print(f"omega0 {row['omega0']:5.2f} rad/s: {row.get('error', 'not measured')}")
-            continue
-        print(f"omega0 {row['omega0']:5.2f} rad/s: R0 {row['R0']:.4f} m (theory {row['R0_theory']:.4f}, "
-              f"{100 * row['R0_error']:+.2f} %), settled {row['settled']}")
+    save_run_figures(run, out)
 
 
 def _cmd_run(args) -> int:
     from rollbot_oc.problems import run_open_loop, run_problem
+    from rollbot_oc.summary import open_loop_text, run_text
 
     problem = _load_scenario(args)
     out = output_folder(args.out)
@@ -251,63 +245,73 @@ def _cmd_run(args) -> int:
         if args.duration is not None:
             raise ConfigError(f"--duration does not apply to the open-loop problem {problem.name}: each speed runs "
                               "until two revolutions are measured")
-        metrics = run_open_loop(problem)
+        metrics = run_open_loop(problem, show_progress=_show_progress(args))
         if out:
             write_json(out / f"{problem.name}.json", metrics)
+        _emit(args, metrics, lambda: open_loop_text(metrics["runs"], problem.name))
     else:
-        run = run_problem(problem, args.controller, seed=args.seed)
+        run = run_problem(problem, args.controller, seed=args.seed, show_progress=_show_progress(args))
         metrics = run.metrics
         if out:
             _write_run(run, out)
-    if args.json:
-        print(to_json(metrics))
-    else:
-        _print_metrics(metrics)
+        _emit(args, metrics, lambda: run_text(run))
     return EXIT_OK if metrics.get("completed") else _failed(f"{problem.name}: the run did not complete")
 
 
 def _cmd_compare(args) -> int:
     from rollbot_oc.outputs import atomic_write_text
     from rollbot_oc.plots import plot_comparison
-    from rollbot_oc.problems import compare, comparison_row, comparison_table
+    from rollbot_oc.problems import compare
+    from rollbot_oc.summary import compare_text, comparison_row, comparison_table
 
     problem = _load_scenario(args)
     if problem.kind == "open_loop":
         raise ConfigError(f"{args.problem}: an open-loop problem has no controller to compare")
     out = output_folder(args.out)
-    runs = compare(problem, seed=args.seed)
-    table = comparison_table(runs)
+    runs = compare(problem, seed=args.seed, show_progress=_show_progress(args))
     rows = [comparison_row(run) for run in runs]
     if out:
-        atomic_write_text(out / f"{problem.name}_comparison.md", f"# {problem.name}: PID against NMPC\n\n{table}\n")
+        atomic_write_text(out / f"{problem.name}_comparison.md",
+                          f"# {problem.name}: PID against NMPC\n\n{comparison_table(runs)}\n")
         write_json(out / f"{problem.name}_comparison.json", {"problem": problem.name, "seed": args.seed,
                                                              "rows": rows, "metrics": [r.metrics for r in runs]})
         plot_comparison(runs, path=out / f"{problem.name}_comparison.png")
         for run in runs:
             _write_run(run, out)
-    print(to_json(rows) if args.json else table)
+    _emit(args, rows, lambda: compare_text(runs))
     incomplete = [r["controller"] for r in rows if not r["completed"]]
     return _failed(f"{problem.name}: not completed by {', '.join(incomplete)}") if incomplete else EXIT_OK
 
 
 def _cmd_problems(args) -> int:
     from rollbot_oc.scenarios import list_bundled
+    from rollbot_oc.summary import problems_text
 
     rows = list_bundled()
-    if args.json:
-        print(to_json(rows))
-        return EXIT_OK
-    width = max(len(r["name"]) for r in rows)
-    for r in rows:
-        print(f"{r['name']:<{width}}  {r['kind']:<9}  {r['description']}")
+    _emit(args, rows, lambda: problems_text(rows))
+    return EXIT_OK
+
+
+def _cmd_params(args) -> int:
+    from rollbot_oc.design import robot_record
+    from rollbot_oc.params import RollbotParams, read_params_table
+    from rollbot_oc.summary import params_text
+
+    table = read_params_table(args.params) if args.params else {}
+    params = RollbotParams.from_file_dict(table, source=f"parameter file {args.params}")
+    record = robot_record(params, given=set(table), robot=_robot(args))
+    _emit(args, record, lambda: params_text(record))
     return EXIT_OK
 
 
 def _cmd_demo(args) -> int:
     from rollbot_oc.report import make_report
+    from rollbot_oc.summary import demo_text
 
     params = load_params(args.params)
-    make_report(output_folder(args.out).path, params, quick=args.quick)
+    out = output_folder(args.out).path
+    summary = make_report(out, params, quick=args.quick, show_progress=_show_progress(args), robot=_robot(args))
+    _emit(args, summary, lambda: demo_text(summary, out / "report.md"))
     return EXIT_OK
 
 
@@ -317,17 +321,19 @@ def _cmd_plot(args) -> int:
     from rollbot_oc.animate import animate_run
     from rollbot_oc.plots import plot_energy_and_contact, plot_time_series, plot_top_view
     from rollbot_oc.simulate import SimulationResult
+    from rollbot_oc.summary import saved_run_verdict
 
     run = SimulationResult.load(args.run_file)
     out = output_folder(args.out)
     stem = Path(args.run_file).stem or "run"
+    title = f"{stem}\n{saved_run_verdict(run)}"
     written = [out / f"{stem}_top.png", out / f"{stem}_time.png", out / f"{stem}_energy.png"]
     for plot, path in zip((plot_top_view, plot_time_series, plot_energy_and_contact), written):
-        plot(run, title=stem, path=path)
+        plot(run, title=title, path=path)
     if args.animate:
         written.append(animate_run(run, out / f"{stem}.gif", title=stem))
-    for path in written:
-        print(path)
+    _emit(args, None, lambda: "\n".join([f"{stem}: {saved_run_verdict(run)}; {len(written)} files written:",
+                                          *(f"  {path}" for path in written)]))
     return EXIT_OK
 
 
@@ -338,14 +344,21 @@ def build_parser() -> argparse.ArgumentParser:
                      "0 success, 1 did not converge or complete, 2 bad argument or file, 3 internal error, "
                      "130 interrupted.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    common = {"--quiet": "print nothing but errors (for scripts: the exit status says how it went); "
+                         "not with --json",
+              "--progress": "show progress on stderr even when it is not a terminal (default: only on a terminal)"}
     parser.add_argument("--debug", action="store_true", help="show the traceback of an internal error")
+    for option, text in common.items():
+        parser.add_argument(option, action="store_true", help=text)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
-    debug = _Parser(add_help=False)  # --debug is also taken after the subcommand
-    debug.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    shared = _Parser(add_help=False)  # the global options are also taken after the subcommand
+    shared.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    for option, text in common.items():
+        shared.add_argument(option, action="store_true", default=argparse.SUPPRESS, help=text)
 
     def command(name: str, **kwargs) -> argparse.ArgumentParser:
-        return sub.add_parser(name, parents=[debug], **kwargs)
+        return sub.add_parser(name, parents=[shared], **kwargs)
 
     p = command("openloop", help="the paper's open-loop experiment: constant driving speeds, "
                        "measured revolving radius, rate and tilt")
@@ -401,6 +414,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print a JSON list of {name, kind, description}")
     p.set_defaults(run=_cmd_problems)
 
+    p = command("params", help="the robot's parameters with units and sources (default, file, derived), and what "
+                "follows from them: masses, range of revolving radius, worst recovery time")
+    _add_params(p)
+    p.add_argument("--json", action="store_true", help="print a JSON object {robot, params, derived}")
+    p.set_defaults(run=_cmd_params)
+
     p = command("demo", help="the main job: quasi-stable figures, PID against NMPC on the N-shape, "
                        "an animation; writes a report folder")
     _add_params(p)
@@ -445,6 +464,8 @@ def main(argv=None) -> int:
     with _one_line_warnings():
         try:
             args = build_parser().parse_args(argv)
+            if args.quiet and getattr(args, "json", False):
+                raise UsageError(f"--quiet and --json exclude each other (see '{PROG} {args.command} --help')")
             with interruptible(f"{PROG} {args.command}"):  # a Ctrl-C a solver swallows still interrupts
                 return args.run(args)
         except SystemExit as exc:  # --help and --version

@@ -14,14 +14,14 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.params import RollbotParams
+from rollbot_oc.progress import progress_bar
 from rollbot_oc.quasi_stable import quasi_stable_curve
 from rollbot_oc.stability import stability_curve
 
-__all__ = ["DesignPoint", "design_point", "sweep", "SWEEPABLE"]
+__all__ = ["DesignPoint", "design_point", "sweep", "robot_record", "SWEEPABLE"]
 
 SWEEPABLE = ("phi", "m", "r0", "k0", "R", "I", "M_s")
 
@@ -87,7 +87,53 @@ def sweep(base: RollbotParams, field: str, values, speeds: int = 30,
     if field not in SWEEPABLE:
         raise ConfigError(f"sweep: field = {field!r}; valid are {', '.join(SWEEPABLE)}")
     points = []
-    for value in tqdm(values, desc=f"sweeping {field}", disable=None if show_progress is None else not show_progress):
+    for value in progress_bar(values, show_progress, desc=f"sweeping {field}"):
         # derived defaults follow (the paper's k0 = 0.4 1/s M R^2 and M_max = r0 m g) unless base sets them
         points.append(design_point(base.with_changes(**{field: float(value)}), speeds))
     return points
+
+
+def robot_record(params: RollbotParams, given=(), robot: str = "prototype") -> dict:
+    """A robot at a glance: its parameters with units and sources, and what follows from them.
+
+    Parameters
+    ----------
+    params : RollbotParams
+    given : collection of str
+        The TOML keys a parameter file set (``params.read_params_table``).
+    robot : str
+        What the robot is called (the file it came from).
+
+    Returns
+    -------
+    dict
+        ``robot``; ``params``: ``RollbotParams.described(given)`` (file
+        units); ``derived``: records ``key``, ``value`` (SI), ``unit``,
+        ``meaning``, ``source`` (``"derived"``) for the body and total mass and,
+        from ``design_point``, the revolving radius at rest and at
+        ``max_speed`` (None where the slow branch ends before it), the highest
+        driving speed with a quasi-stable state, the worst recovery time and
+        whether every state is stable.  Without damping (``k0 = 0``) these
+        are None and each has a ``note``.
+    """
+    try:
+        point = design_point(params)
+        note = None
+    except ConfigError as exc:  # k0 = 0: simulation and optimal control work, the quasi-stable analysis does not
+        point, note = None, f"no quasi-stable analysis: {exc}"
+    values = [
+        ("M", params.M, "kg", "shell body mass M_s + m_b"),
+        ("total_mass", params.total_mass, "kg", "whole robot M_s + m_b + m"),
+        ("R0_min", point and point.R0_min, "m", "revolving radius at rest (R tan phi)"),
+        ("R0_max", point and (None if math.isnan(point.R0_max) else point.R0_max), "m",
+         "revolving radius at max_speed (slow branch)"),
+        ("reach", point and point.reach, "rad/s", "highest driving speed with a quasi-stable state"),
+        ("tau_max", point and point.tau_max, "s", "worst recovery time over the driving speeds"),
+        ("stable", point and point.stable, "", "every quasi-stable state is stable"),
+    ]
+    derived = [{"key": key, "value": value, "unit": unit, "meaning": meaning, "source": "derived"}
+               for key, value, unit, meaning in values]
+    if note:
+        for record in derived[2:]:
+            record["note"] = note
+    return {"robot": robot, "params": params.described(given), "derived": derived}

@@ -44,7 +44,7 @@ from rollbot_oc.errors import ConfigError
 from rollbot_oc.outputs import atomic_write_text, user_path
 
 __all__ = ["RollbotParams", "PARAM_VECTOR_FIELDS", "PARAM_INDEX", "NP", "TILT", "ParamView", "load_params",
-           "save_params", "read_toml"]
+           "read_params_table", "save_params", "read_toml"]
 
 # Order of the numeric parameter vector ``p`` fed to every symbolic Function.  The floor's slope enters
 # as its tilt vector (tilt_x, tilt_y) = sin(slope) (cos slope_dir, sin slope_dir): the in-plane part of
@@ -84,23 +84,23 @@ class ParamView:
                                  f"{', '.join(PARAM_VECTOR_FIELDS)}, tilt, weight") from None
 
 
-# File key -> (attribute, scale from file units to SI).
+# File key -> (attribute, scale from file units to SI, unit in the file, meaning).
 _FILE_KEYS = {
-    "R": ("R", 1.0),
-    "M_s": ("M_s", 1.0),
-    "m_b": ("m_b", 1.0),
-    "I": ("I", 1.0),
-    "phi_deg": ("phi", math.pi / 180.0),
-    "r0": ("r0", 1.0),
-    "m": ("m", 1.0),
-    "k0": ("k0", 1.0),
-    "g": ("g", 1.0),
-    "mu": ("mu", 1.0),
-    "max_torque": ("max_torque", 1.0),
-    "max_speed": ("max_speed", 1.0),
-    "max_accel": ("max_accel", 1.0),
-    "slope_deg": ("slope", math.pi / 180.0),
-    "slope_dir_deg": ("slope_dir", math.pi / 180.0),
+    "R": ("R", 1.0, "m", "shell outer radius"),
+    "M_s": ("M_s", 1.0, "kg", "shell mass"),
+    "m_b": ("m_b", 1.0, "kg", "bead mass (added to the shell)"),
+    "I": ("I", 1.0, "kg m^2", "shell moment of inertia"),
+    "phi_deg": ("phi", math.pi / 180.0, "deg", "motor axis to pendulum arm"),
+    "r0": ("r0", 1.0, "m", "shell centre to pendulum mass"),
+    "m": ("m", 1.0, "kg", "pendulum mass"),
+    "k0": ("k0", 1.0, "N m s", "damping (default 0.4 1/s M R^2)"),
+    "g": ("g", 1.0, "m/s^2", "gravity"),
+    "mu": ("mu", 1.0, "1", "friction coefficient"),
+    "max_torque": ("max_torque", 1.0, "N m", "motor torque limit (default r0 m g)"),
+    "max_speed": ("max_speed", 1.0, "rad/s", "driving-speed limit"),
+    "max_accel": ("max_accel", 1.0, "rad/s^2", "motor acceleration limit"),
+    "slope_deg": ("slope", math.pi / 180.0, "deg", "floor inclination"),
+    "slope_dir_deg": ("slope_dir", math.pi / 180.0, "deg", "downhill direction"),
 }
 
 _K0_RATE = 0.4  # 1/s, the paper's k0 = (0.4 1/s) M R^2
@@ -273,7 +273,28 @@ class RollbotParams:
 
     def to_file_dict(self) -> dict[str, float]:
         """The parameters under their TOML keys, in file units (degrees for ``_deg``)."""
-        return {key: getattr(self, attr) / scale for key, (attr, scale) in _FILE_KEYS.items()}
+        return {key: getattr(self, attr) / scale for key, (attr, scale, *_) in _FILE_KEYS.items()}
+
+    def described(self, given=()) -> list[dict]:
+        """Every parameter under its TOML key with its unit, meaning and where its value came from.
+
+        Parameters
+        ----------
+        given : collection of str
+            The TOML keys a file set (``read_params_table``).
+
+        Returns
+        -------
+        list of dict
+            One per key, in the file's order: ``key``, ``value`` (file units,
+            degrees for ``_deg``), ``unit``, ``meaning`` and ``source``:
+            ``"file"`` for a key in ``given``, ``"derived"`` for a derived
+            default that follows the other values (``derived``), else ``"default"``.
+        """
+        values = self.to_file_dict()
+        return [{"key": key, "value": values[key], "unit": unit, "meaning": meaning,
+                 "source": "file" if key in given else "derived" if attr in self._derived else "default"}
+                for key, (attr, _, unit, meaning) in _FILE_KEYS.items()]
 
     @classmethod
     def from_file_dict(cls, data: dict, source: str = "parameters",
@@ -299,7 +320,7 @@ class RollbotParams:
                 f"{source}: unknown key(s) {', '.join(unknown)}; valid keys are {', '.join(_FILE_KEYS)}"
             )
         kwargs = {}
-        for key, (attr, scale) in _FILE_KEYS.items():
+        for key, (attr, scale, *_) in _FILE_KEYS.items():
             if key not in data:
                 continue
             value = data[key]
@@ -351,6 +372,18 @@ def read_toml(path: str | Path, what: str) -> dict:
         raise ConfigError(f"{what} {path} is not valid TOML: nested too deeply") from None
 
 
+def read_params_table(path: str | Path) -> dict:
+    """The parameter table of a TOML file: its top level, or its ``[params]`` table if it has one.
+
+    Raises
+    ------
+    ConfigError
+        If the file is missing or unreadable or is not valid TOML (see ``read_toml``).
+    """
+    data = read_toml(path, "parameter file")
+    return data["params"] if "params" in data and isinstance(data["params"], dict) else data
+
+
 def load_params(path: str | Path | None) -> RollbotParams:
     """Load parameters from a TOML file; ``None`` gives the paper's prototype.
 
@@ -372,10 +405,7 @@ def load_params(path: str | Path | None) -> RollbotParams:
     """
     if path is None:
         return RollbotParams()
-    data = read_toml(path, "parameter file")
-    if "params" in data and isinstance(data["params"], dict):
-        data = data["params"]
-    return RollbotParams.from_file_dict(data, source=f"parameter file {path}")
+    return RollbotParams.from_file_dict(read_params_table(path), source=f"parameter file {path}")
 
 
 def save_params(params: RollbotParams, path: str | Path) -> None:

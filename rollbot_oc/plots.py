@@ -18,7 +18,7 @@ from rollbot_oc.outputs import atomic_write_bytes
 
 __all__ = [
     "ROBOT", "CENTRE", "SPEED", "TARGET", "THEORY", "MEASURED", "save_figure", "plot_top_view", "plot_time_series",
-    "plot_quasi_stable", "plot_eigenvalues", "plot_comparison", "plot_energy_and_contact",
+    "plot_quasi_stable", "plot_eigenvalues", "plot_comparison", "plot_energy_and_contact", "save_run_figures",
 ]
 
 ROBOT = "tab:orange"
@@ -101,7 +101,7 @@ def plot_time_series(result, centres=None, title: str | None = None, path=None):
     return save_figure(fig, path)
 
 
-def plot_quasi_stable(curves, path=None, title: str | None = None):
+def plot_quasi_stable(curves, path=None, title: str | None = None, robot: str = "prototype"):
     """The paper's 'key parameters of quasi-stable state' figure: R0, Omega, xi, theta0 against omega0.
 
     Parameters
@@ -110,6 +110,10 @@ def plot_quasi_stable(curves, path=None, title: str | None = None):
         One curve per branch name (for example ``{"slow": [...], "fast": [...]}``).
     path : str or Path, optional
         Where to write the PNG.
+    title : str, optional
+        Default: the robot and the range of revolving radius on the slow branch.
+    robot : str
+        What the robot is called in the default title.
     """
     fig, axes = plt.subplots(2, 2, figsize=(9, 6.5), sharex=True)
     panels = [("R0", "revolving radius R0 (m)", 1.0), ("Omega", "revolving rate Omega (rad/s)", 1.0),
@@ -126,12 +130,14 @@ def plot_quasi_stable(curves, path=None, title: str | None = None):
     for ax in axes[1]:
         ax.set_xlabel("driving speed omega0 (rad/s)")
     axes[0, 0].legend(fontsize=8)
-    fig.suptitle(title or "Quasi-stable states")
+    slow = [s.R0 for s in curves.get("slow", []) if s.converged]
+    radii = f": slow-branch R0 from {min(slow):.3f} to {max(slow):.3f} m" if slow else ""
+    fig.suptitle(title or f"Quasi-stable states of the {robot}{radii}")
     fig.tight_layout()
     return save_figure(fig, path)
 
 
-def plot_eigenvalues(results, path=None, title: str | None = None):
+def plot_eigenvalues(results, path=None, title: str | None = None, robot: str = "prototype"):
     """The paper's eigenvalue figure: eigenvalue trajectories over omega0, and the recovery time.
 
     Parameters
@@ -140,6 +146,10 @@ def plot_eigenvalues(results, path=None, title: str | None = None):
         Along increasing driving speed.
     path : str or Path, optional
         Where to write the PNG.
+    title : str, optional
+        Default: the robot, whether every state is stable and the range of recovery time.
+    robot : str
+        What the robot is called in the default title.
     """
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.5), gridspec_kw=dict(width_ratios=[1.3, 1]))
     omegas = np.array([r.state.omega0 for r in results])
@@ -162,13 +172,35 @@ def plot_eigenvalues(results, path=None, title: str | None = None):
     ax3.set_ylabel("recovery time tau (s)")
     ax2.legend(loc="upper left", fontsize=8)
     ax3.legend(loc="upper right", fontsize=8)
-    fig.suptitle(title or "Linearised stability of the quasi-stable states")
+    taus = [r.tau for r in results if np.isfinite(r.tau)]
+    verdict = ("stable at every speed" if all(r.stable for r in results) else "NOT stable at every speed") + (
+        f", recovery time {min(taus):.1f} to {max(taus):.1f} s" if taus else "")
+    fig.suptitle(title or f"Linearised stability of the {robot}'s quasi-stable states: {verdict}")
     fig.tight_layout()
     return save_figure(fig, path)
 
 
+def _mark_progress(ax, run) -> None:
+    """Mark on a time axis where ``run`` reached each stop, or reached its circle and started being measured."""
+    m = run.metrics
+    for i, t in enumerate(m.get("stop_times", []), 1):
+        ax.axvline(t, color=TARGET, ls="--", lw=0.9)
+        ax.annotate(f"stop {i}", (t, 1.0), xycoords=("data", "axes fraction"), xytext=(-3, -3),
+                    textcoords="offset points", ha="right", va="top", fontsize=8, color=TARGET, rotation=90)
+    if m.get("reach_time") is not None:
+        ax.axvline(m["reach_time"], color=TARGET, ls="--", lw=0.9)
+        ax.annotate("on the circle", (m["reach_time"], 1.0), xycoords=("data", "axes fraction"), xytext=(3, -3),
+                    textcoords="offset points", va="top", fontsize=8, color=TARGET)
+        if m.get("avg_deviation") is not None:
+            ax.axvspan(m["settle_time"], run.result.t[-1], color=TARGET, alpha=0.07, label="deviation measured")
+
+
 def plot_comparison(runs, path=None, title: str | None = None):
-    """Top view of several controllers' runs on one problem, overlaid, with the targets.
+    """Several controllers on one problem: top view overlaid, and each run's driving speed on its own time axis.
+
+    Each time panel spans its own run (a 27 s and a 190 s run both fill their
+    width), with the same speed axis, the stops reached (or the arrival on
+    the circle) marked, and the run's verdict as its title.
 
     Parameters
     ----------
@@ -176,19 +208,36 @@ def plot_comparison(runs, path=None, title: str | None = None):
         Runs of the same problem (for example ``problems.compare``).
     path : str or Path, optional
         Where to write the PNG.
+    title : str, optional
+        Default: which controller did better (``summary.compare_headline``).
     """
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw=dict(width_ratios=[1, 1.2]))
+    from rollbot_oc.summary import compare_headline, run_verdict
+
+    fig = plt.figure(figsize=(13, 2.2 + 2.4 * len(runs)), layout="constrained")
+    grid = fig.add_gridspec(len(runs), 2, width_ratios=[1, 1.5])
+    ax = fig.add_subplot(grid[:, 0])
     colours = {"pid": ROBOT, "nmpc": "tab:brown"}
     problem = runs[0].problem
-    for run in runs:
-        s = run.result.position
+    time_axes = []
+    for i, run in enumerate(runs):
         colour = colours.get(run.controller, None)
-        ax.plot(s[0], s[1], color=colour, lw=1.1, label=f"{run.controller}")
-        ax2.plot(run.result.t, run.result.driving_speed, color=colour, lw=1.0, label=run.controller)
+        s = run.result.position
+        ax.plot(s[0], s[1], color=colour, lw=1.1, label=run.controller)
+        axt = fig.add_subplot(grid[i, 1], sharey=time_axes[0] if time_axes else None)
+        axt.plot(run.result.t, run.result.driving_speed, color=colour, lw=1.0)
+        _mark_progress(axt, run)
+        axt.set_xlim(0.0, run.result.t[-1])
+        axt.set_ylabel(f"{run.controller}\ndriving speed (rad/s)")
+        axt.set_xlabel("time (s)")
+        axt.set_title(f"{run.controller}: {run_verdict(run)}", fontsize=9, loc="left")
+        axt.grid(alpha=0.3)
+        time_axes.append(axt)
     mission = problem.mission
     if problem.kind == "waypoints":
         tx, ty = np.asarray(mission.stops).T
         ax.plot(tx, ty, "x", color=TARGET, ms=10, mew=2, label="stops")
+        for i, (x, y) in enumerate(mission.stops, 1):
+            ax.annotate(str(i), (x, y), xytext=(6, 4), textcoords="offset points", color=TARGET, fontsize=9)
     elif problem.kind == "circle":
         a = np.linspace(0.0, 2 * np.pi, 200)
         ax.plot(mission.centre[0] + mission.radius * np.cos(a), mission.centre[1] + mission.radius * np.sin(a),
@@ -198,14 +247,40 @@ def plot_comparison(runs, path=None, title: str | None = None):
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    ax2.set_xlabel("time (s)")
-    ax2.set_ylabel("driving speed (rad/s)")
-    ax2.set_xscale("symlog", linthresh=10.0)
-    ax2.grid(alpha=0.3)
-    ax2.legend(fontsize=8)
-    fig.suptitle(title or f"{problem.name}: " + " vs ".join(run.controller for run in runs))
-    fig.tight_layout()
+    ax.set_title("top view", fontsize=9, loc="left")
+    fig.suptitle(title or compare_headline(runs))
     return save_figure(fig, path)
+
+
+def save_run_figures(run, folder) -> list[Path]:
+    """Top view, time series and energy/contact plots of a closed-loop run, titled with its verdict.
+
+    Parameters
+    ----------
+    run : RunResult
+        The run (``problems.run_problem``).
+    folder : Path or OutputFolder
+        Where to write ``<problem>_<controller>_top.png``, ``_time.png`` and ``_energy.png``.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    from rollbot_oc.summary import run_title
+
+    stem = f"{run.problem.name}_{run.controller}"
+    targets = run.problem.mission.stops if run.problem.kind == "waypoints" else None
+    circle = run.problem.mission if run.problem.kind == "circle" else None
+    title = run_title(run)
+    paths = [folder / f"{stem}_top.png", folder / f"{stem}_time.png", folder / f"{stem}_energy.png"]
+    figures = [plot_top_view(run.result, centres=run.centres, targets=targets, circle=circle, title=title,
+                             path=paths[0]),
+               plot_time_series(run.result, centres=run.centres, title=title, path=paths[1]),
+               plot_energy_and_contact(run.result, title=title, path=paths[2])]
+    for figure in figures:
+        plt.close(figure)
+    return paths
 
 
 def plot_energy_and_contact(result, path=None, title: str | None = None):

@@ -62,10 +62,12 @@ from rollbot_oc.control.missions import (
 from rollbot_oc.dynamics import OMEGA, rest_state
 from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.params import RollbotParams, read_toml
+from rollbot_oc.progress import RunProgress, progress_bar, working
 from rollbot_oc.simulate import Sensor, SimulationResult, simulate
+from rollbot_oc.summary import comparison_row, comparison_table
 
 __all__ = ["Problem", "load_problem", "make_controller", "run_problem", "run_open_loop", "compute_metrics", "RunResult",
-           "compare", "comparison_row", "comparison_table",
+           "compare", "comparison_row", "comparison_table",  # the last two live in summary
            "CONTROLLERS", "REACH_HOLD", "DURATION_RANGE", "check_duration"]
 
 KINDS = ("circle", "waypoints", "open_loop")
@@ -367,7 +369,7 @@ class RunResult:
 
 
 def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: RollbotParams | None = None,
-                duration: float | None = None, **options) -> RunResult:
+                duration: float | None = None, show_progress: bool | None = None, **options) -> RunResult:
     """Run a circle or waypoint problem in closed loop and compute its metrics.
 
     Parameters
@@ -381,6 +383,9 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
         The controller's model of the robot (default: the plant's, level floor).
     duration : float, optional
         Override the problem's duration, s, in ``DURATION_RANGE``.
+    show_progress : bool or None
+        Progress on stderr (planning, then simulated time and stops reached):
+        True shows it, False hides it, None only on a terminal (``progress``).
     **options
         Passed to ``make_controller``.
 
@@ -398,12 +403,17 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
     ctrl = make_controller(controller, problem, params, **options) if isinstance(controller, str) else controller
     sensor = Sensor(seed=seed, **problem.sensor)
     prepare = getattr(ctrl, "prepare", None)
+    label = f"{problem.name} {name}"
     if callable(prepare):  # offline planning happens before the run starts
-        prepare(problem.initial_state())
-    start = time.perf_counter()
-    result = simulate(problem.initial_state(), problem.duration, params=problem.params,
-                      controller=ctrl, dt=problem.dt, sensor=sensor)
-    wall = time.perf_counter() - start
+        with working(f"{label}: planning", show_progress):
+            prepare(problem.initial_state())
+    stops = len(problem.mission.stops) if problem.kind == "waypoints" else 0
+    with RunProgress(problem.duration, label, stops, show_progress) as progress:
+        start = time.perf_counter()
+        result = simulate(problem.initial_state(), problem.duration, params=problem.params,
+                          controller=ctrl, dt=problem.dt, sensor=sensor, progress=progress if progress.shown else None)
+        wall = time.perf_counter() - start
+        progress.finish(float(result.t[-1]), result.info)
     centres = _centres(result, getattr(ctrl, "map", None))
     metrics = compute_metrics(problem, result, centres)
     metrics.update({k: v for k, v in result.info.items() if k != "stops"})
@@ -495,8 +505,10 @@ def _waypoint_metrics(problem: Problem, waypoints: Waypoints, result: Simulation
     return out
 
 
-def run_open_loop(problem: Problem) -> dict:
+def run_open_loop(problem: Problem, show_progress: bool | None = None) -> dict:
     """Run an open-loop problem: each driving speed measured in simulation against the quasi-stable theory.
+
+    ``show_progress``: a bar over the speeds on stderr, as for ``run_problem``.
 
     Returns
     -------
@@ -516,7 +528,8 @@ def run_open_loop(problem: Problem) -> dict:
         check_open_loop(speed, problem.params, ramp_rate=problem.ramp_rate)
     theory = quasi_stable_curve(problem.speeds, problem.params.replace(slope=0.0))
     runs = []
-    for speed, qs in zip(problem.speeds, theory):
+    for speed, qs in progress_bar(list(zip(problem.speeds, theory)), show_progress, desc=f"{problem.name}",
+                                  unit="speed"):
         try:
             measured, _ = open_loop_run(speed, problem.params, ramp_rate=problem.ramp_rate, dt=problem.dt)
         except NumericalFailure as exc:
@@ -534,59 +547,11 @@ def run_open_loop(problem: Problem) -> dict:
             "completed": all(r["settled"] for r in runs)}
 
 
-COMPARE_ROWS = (
-    ("completed", "completed", "{}"),
-    ("completion_time", "completion time (s)", "{:.1f}"),
-    ("avg_speed", "average speed (m/s)", "{:.3f}"),
-    ("max_stop_error", "largest stop error (cm)", "{:.1f}"),
-    ("avg_deviation_cm", "average deviation (cm)", "{:.2f}"),
-    ("max_deviation_cm", "largest deviation (cm)", "{:.2f}"),
-    ("max_motor_torque", "largest motor torque (N m)", "{:.3f}"),
-    ("min_normal_force", "least normal force (N)", "{:.2f}"),
-    ("min_slide_margin", "least slide margin (N)", "{:.2f}"),
-    ("solve_median_ms", "solve time median (ms)", "{:.2f}"),
-    ("solve_p95_ms", "solve time p95 (ms)", "{:.2f}"),
-    ("fallbacks", "fallbacks (shifted / PID)", "{}"),
-    ("ocp_bound", "minimum-time bound (s)", "{:.1f}"),
-    ("bound_ratio", "time / minimum-time bound", "{:.2f}"),
-)
-
-
-def comparison_row(run: RunResult) -> dict:
-    """The comparison-table entries of one run (see ``COMPARE_ROWS``)."""
-    m = run.metrics
-    row = {"controller": run.controller, "completed": m["completed"], "completion_time": m["completion_time"],
-           "avg_speed": m["avg_speed"],
-           "max_stop_error": 100 * max(m["stop_errors"]) if m["stop_errors"] else None,
-           "avg_deviation_cm": None if m["avg_deviation"] is None else 100 * m["avg_deviation"],
-           "max_deviation_cm": None if m["max_deviation"] is None else 100 * m["max_deviation"],
-           "max_motor_torque": m["max_motor_torque"], "min_normal_force": m["min_normal_force"],
-           "min_slide_margin": m["min_slide_margin"]}
-    if "solve_time_median" in m:  # an optimising controller: its solves, fallbacks and plans
-        row.update(solve_median_ms=1e3 * m["solve_time_median"], solve_p95_ms=1e3 * m["solve_time_p95"],
-                   fallbacks=f"{m['fallback_shifted']} / {m['fallback_pid']}")
-        fastest = [plan.get("fastest") for plan in m.get("plans", [])]
-        if fastest and all(f is not None for f in fastest):
-            row["ocp_bound"] = float(sum(fastest))
-            if m["completion_time"]:
-                row["bound_ratio"] = m["completion_time"] / row["ocp_bound"]
-    else:
-        row.update(solve_median_ms=1e3 * m["step_time_median"], solve_p95_ms=1e3 * m["step_time_p95"])
-    return row
-
-
 def compare(problem: Problem, seed: int = 0, params: RollbotParams | None = None,
-            duration: float | None = None) -> list[RunResult]:
-    """Run the PID baseline and the NMPC on the same problem, plant, noise and seed."""
-    return [run_problem(problem, name, seed=seed, params=params, duration=duration) for name in ("pid", "nmpc")]
+            duration: float | None = None, show_progress: bool | None = None) -> list[RunResult]:
+    """Run the PID baseline and the NMPC on the same problem, plant, noise and seed.
 
-
-def comparison_table(runs: list[RunResult]) -> str:
-    """A Markdown table of ``comparison_row`` for each run, with the PID/NMPC ratio of the main figure."""
-    rows = [comparison_row(run) for run in runs]
-    lines = ["| | " + " | ".join(r["controller"] for r in rows) + " |", "|---|" + "---|" * len(rows)]
-    for key, label, fmt in COMPARE_ROWS:
-        cells = [fmt.format(r[key]) if r.get(key) is not None else "-" for r in rows]
-        if any(c != "-" for c in cells):
-            lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    ``show_progress`` as for ``run_problem``; the table is ``comparison_table``.
+    """
+    return [run_problem(problem, name, seed=seed, params=params, duration=duration, show_progress=show_progress)
+            for name in ("pid", "nmpc")]

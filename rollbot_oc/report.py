@@ -30,13 +30,8 @@ def _seconds(value) -> str:
     return "did not finish" if value is None else f"{value:.1f} s"
 
 
-def _log(message: str, enabled: bool):
-    if enabled:
-        print(message, flush=True)
-
-
 def make_report(out: str | Path = "out", params: RollbotParams | None = None, quick: bool = False,
-                verbose: bool = True) -> dict:
+                show_progress: bool | None = None, robot: str = "prototype") -> dict:
     """Compute, simulate and write the report folder (see module doc).
 
     Parameters
@@ -47,8 +42,11 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
         The robot; the paper's prototype by default.
     quick : bool
         Fewer curve points, fewer open-loop speeds and a shorter animation (for tests).
-    verbose : bool
-        Print each step and its duration.
+    show_progress : bool or None
+        The steps and the runs' progress on stderr: True shows them, False
+        hides them, None only on a terminal (``progress``).
+    robot : str
+        What the robot is called in the figures' titles.
 
     Returns
     -------
@@ -62,13 +60,13 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
     """
     from rollbot_oc.animate import animate_run
     from rollbot_oc.experiments import check_open_loop, open_loop_run
-    from rollbot_oc.plots import (
-        plot_comparison, plot_eigenvalues, plot_energy_and_contact, plot_quasi_stable, plot_time_series, plot_top_view,
-    )
+    from rollbot_oc.plots import plot_comparison, plot_eigenvalues, plot_quasi_stable, save_run_figures
     from rollbot_oc.problems import compare, comparison_row, comparison_table
+    from rollbot_oc.progress import progress_bar
     from rollbot_oc.quasi_stable import quasi_stable_curve
     from rollbot_oc.scenarios import load_bundled
     from rollbot_oc.stability import stability_curve
+    from rollbot_oc.summary import run_title
 
     out = OutputFolder(out, "out")
     params = params or RollbotParams()
@@ -77,15 +75,22 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
     for speed in speeds:
         check_open_loop(speed, params)
     summary: dict = {"quick": quick}
-    steps = 5
     start = time.perf_counter()
+    steps = progress_bar(show=show_progress, total=5, desc="demo", unit="step",
+                         bar_format="{desc}: step {n_fmt}/{total_fmt} [{elapsed}]")
 
-    _log(f"[1/{steps}] quasi-stable states and their stability", verbose)
+    done = iter(range(6))
+
+    def step(what: str):  # the bar counts the steps done and names the one under way
+        steps.n = next(done)
+        steps.set_description_str(f"demo: {what}")
+
+    step("quasi-stable states and their stability")
     omegas = np.linspace(0.0, params.max_speed, 60 if quick else 200)
     curves = {branch: quasi_stable_curve(omegas, params, branch) for branch in ("slow", "fast")}
-    plot_quasi_stable(curves, path=out / "quasi_stable.png")
+    plot_quasi_stable(curves, path=out / "quasi_stable.png", robot=robot)
     stability = stability_curve(omegas[1:], params)
-    plot_eigenvalues(stability, path=out / "eigenvalues.png")
+    plot_eigenvalues(stability, path=out / "eigenvalues.png", robot=robot)
     slow = curves["slow"]
     summary["quasi_stable"] = {"R0_at_rest": slow[0].R0, "R0_at_max_speed": slow[-1].R0,
                                "Re_lambda2_range": [min(r.lambda2.real for r in stability),
@@ -94,7 +99,7 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
 
     plt.close("all")
 
-    _log(f"[2/{steps}] open-loop experiment against the theory", verbose)
+    step("open-loop experiment against the theory")
     rows = []
     for speed, theory in zip(speeds, quasi_stable_curve(speeds, params)):
         measured, _ = open_loop_run(speed, params)
@@ -102,21 +107,16 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
     write_json(out / "openloop.json", {"runs": rows})
     summary["open_loop_max_R0_error"] = max(abs(r["R0_error"]) for r in rows)
 
-    _log(f"[3/{steps}] PID baseline and NMPC on the N-shape (full plant, 1 deg slope)", verbose)
-    runs = compare(problem)
+    step("PID baseline and NMPC on the N-shape")
+    runs = compare(problem, show_progress=show_progress)
     table = comparison_table(runs)
     atomic_write_text(out / "comparison.md", f"# N-shape: PID baseline against NMPC\n\n{table}\n")
     write_json(out / "comparison.json", {"rows": [comparison_row(r) for r in runs],
                                          "metrics": [r.metrics for r in runs]})
     plot_comparison(runs, path=out / "comparison.png")
     for run in runs:
-        stem = f"n_shape_{run.controller}"
-        run.result.save(out / f"{stem}.npz")
-        plot_top_view(run.result, centres=run.centres, targets=problem.mission.stops,
-                      title=f"N-shape, {run.controller}", path=out / f"{stem}_top.png")
-        plot_time_series(run.result, centres=run.centres, title=f"N-shape, {run.controller}",
-                         path=out / f"{stem}_time.png")
-        plot_energy_and_contact(run.result, title=f"N-shape, {run.controller}", path=out / f"{stem}_energy.png")
+        run.result.save(out / f"n_shape_{run.controller}.npz")
+        save_run_figures(run, out)
     pid, nmpc = (r.metrics for r in runs)
     summary["n_shape"] = {"pid_time": pid["completion_time"], "nmpc_time": nmpc["completion_time"],
                           "speed_up": pid["completion_time"] / nmpc["completion_time"]
@@ -127,12 +127,12 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
 
     plt.close("all")
 
-    _log(f"[4/{steps}] animation of the NMPC run", verbose)
+    step("animation of the NMPC run")
     nmpc_run = runs[1]
     animate_run(nmpc_run.result, out / "n_shape_nmpc.gif", centres=nmpc_run.centres, targets=problem.mission.stops,
-                title="N-shape, NMPC", frames=40 if quick else 120)
+                title=run_title(nmpc_run), frames=40 if quick else 120)
 
-    _log(f"[5/{steps}] report", verbose)
+    step("report")
     q = summary["quasi_stable"]
     n = summary["n_shape"]
     lines = [
@@ -150,11 +150,25 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
         "",
         table,
         "",
-        "Figures: quasi_stable.png, eigenvalues.png, comparison.png, n_shape_*_top.png, n_shape_*_time.png, "
-        "n_shape_*_energy.png; animation: n_shape_nmpc.gif; data: openloop.json, comparison.json, *.npz.",
+        "## Figures",
+        "",
+        "![quasi-stable states](quasi_stable.png)",
+        "",
+        "![eigenvalues and recovery time](eigenvalues.png)",
+        "",
+        "![PID against NMPC on the N-shape](comparison.png)",
+        "",
+        *(f"![{run.controller}: {what}](n_shape_{run.controller}_{suffix}.png)\n" for run in runs
+          for suffix, what in (("top", "top view"), ("time", "time series"), ("energy", "energy and contact"))),
+        "![animation of the NMPC run](n_shape_nmpc.gif)",
+        "",
+        "Data: [openloop.json](openloop.json), [comparison.md](comparison.md), [comparison.json](comparison.json), "
+        + ", ".join(f"[n_shape_{run.controller}.npz](n_shape_{run.controller}.npz)" for run in runs)
+        + " (`rollbot-oc plot RUN.npz` draws a saved run again).",
     ]
     atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
     summary["wall_time"] = time.perf_counter() - start
     write_json(out / "report.json", summary)
-    _log(f"done in {summary['wall_time']:.0f} s: {out}/report.md", verbose)
+    step("done")
+    steps.close()
     return summary

@@ -493,7 +493,8 @@ def _first_events(t: np.ndarray, diag: np.ndarray) -> list[Event]:
 
 def simulate(x0, duration: float, *, params: RollbotParams | None = None, controller: Controller | None = None,
              speed=None, accel=None, dt: float = 0.01, substeps: int = 2, method: str = "rk4",
-             sensor: Sensor | None = None, wrench=None, stop_on_event: bool = True) -> SimulationResult:
+             sensor: Sensor | None = None, wrench=None, stop_on_event: bool = True,
+             progress=None) -> SimulationResult:
     """Simulate Rollbot's full nonlinear dynamics, open loop or under a controller.
 
     Parameters
@@ -525,6 +526,10 @@ def simulate(x0, duration: float, *, params: RollbotParams | None = None, contro
         Constant external force (N) and torque (N m) on the shell, floor frame.
     stop_on_event : bool
         End the run at the first loss of contact or slide (default).
+    progress : callable, optional
+        Closed loop: ``progress(t, info)`` is called every 0.5 s of simulated
+        time with the time reached, s, and the controller's report so far
+        (what becomes ``SimulationResult.info``), for progress displays.
 
     Returns
     -------
@@ -559,7 +564,8 @@ def simulate(x0, duration: float, *, params: RollbotParams | None = None, contro
         info = {}
     else:
         x, command, speed_cmd, diag, step_times, info = _closed_loop(
-            x0, steps, dt, controller, plant_step(dt, substeps, method), p, w, sensor or Sensor(), stop_on_event)
+            x0, steps, dt, controller, plant_step(dt, substeps, method), p, w, sensor or Sensor(), stop_on_event,
+            progress)
     events = _first_events(times, diag)
     end = diag.shape[1]
     if events and stop_on_event:
@@ -569,7 +575,7 @@ def simulate(x0, duration: float, *, params: RollbotParams | None = None, contro
                             diag[:, :end], events, step_times[:end], info)
 
 
-def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event):
+def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event, progress=None):
     x = np.empty((NX, steps + 1))
     x[:, 0] = x0
     diag = np.empty((NDIAG, steps))
@@ -579,6 +585,7 @@ def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event):
     step = FastFunction(step)
     controller.reset()
     end = steps
+    report_every = max(1, int(round(0.5 / dt)))  # progress: every 0.5 s of simulated time
     for k in range(steps):
         seen = max(0, k - sensor.latency)
         obs = sensor.measure(seen * dt, x[:, seen])
@@ -592,6 +599,8 @@ def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event):
         if (stop_on_event and (diag[5, k] <= 0 or diag[6, k] < 0)) or getattr(controller, "done", False):
             end = k + 1
             break
+        if progress is not None and (k + 1) % report_every == 0:
+            progress((k + 1) * dt, _controller_info(controller))
     return (x[:, :end + 1], command[:end], speed_cmd[:end], diag[:, :end], step_times[:end],
             _controller_info(controller))
 

@@ -223,6 +223,16 @@ def test_analysis_commands_with_generated_parameter_files(params, command, omega
     run_contract(build)
 
 
+@given(params=st.one_of(param_tables.map(lambda t: ("toml", toml(t))), file_args), json_flag=st.booleans(),
+       quiet=st.booleans())
+def test_params_with_generated_parameter_files(params, json_flag, quiet):
+    def build(space):
+        return ["params", "--params", space.file(params, "p.toml")] + (["--json"] if json_flag else []) + (
+            ["--quiet"] if quiet else [])
+
+    run_contract(build)
+
+
 @given(problem=st.one_of(problem_tables.map(lambda t: ("toml", toml(t))), file_args),
        params=st.none() | param_tables.map(lambda t: ("toml", toml(t))), duration=st.sampled_from(
            ["1", "2", "0", "1e9", "nan", "x", None]), seed=st.sampled_from(["0", "7", "-1", "x", "4294967296"]),
@@ -269,8 +279,9 @@ def test_plot_with_generated_files(run, out, animate):
     run_contract(build)
 
 
-VOCABULARY = ["run", "compare", "quasi", "stability", "openloop", "plot", "demo", "problems", "--json", "--out",
-              "--params", "--omega0", "--duration", "--seed", "--controller", "nmpc", "--branch", "--debug",
+VOCABULARY = ["run", "compare", "quasi", "stability", "openloop", "plot", "demo", "problems", "params", "--json",
+              "--quiet", "--out", "--params", "--omega0", "--duration", "--seed", "--controller", "nmpc", "--branch",
+              "--debug",
               "--help", "-h", "--version", "1", "nan", "x", "", "-", "--", "n_shape", "circle_R035"]
 
 

@@ -456,7 +456,7 @@ def test_12_bundled_scenarios(capsys):
     assert status == 0 and [r["name"] for r in rows] == names
     assert {r["kind"] for r in rows} == {"circle", "waypoints", "open_loop"} and all(r["description"] for r in rows)
     status, out, _ = cli_run(["problems"], capsys)
-    assert status == 0 and out.splitlines()[names.index("n_shape")].split()[:2] == ["n_shape", "waypoints"]
+    assert status == 0 and out.splitlines()[1 + names.index("n_shape")].split()[:2] == ["n_shape", "waypoints"]
 
 
 def test_12_run_takes_a_bundled_name(tmp_path, monkeypatch):

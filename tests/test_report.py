@@ -27,7 +27,11 @@ def test_demo_writes_the_report_folder(tmp_path, capsys):
     assert "| completion time (s) |" in table and "nmpc" in table
     with Image.open(out / "n_shape_nmpc.gif") as gif:
         assert gif.n_frames >= 20
-    assert "[5/5] report" in capsys.readouterr().out  # long steps show progress
+    lines = capsys.readouterr().out.splitlines()  # the summary leads; the steps' progress is on a terminal only
+    assert lines[0].startswith(f"report written: {out / 'report.md'}") and lines[1].startswith("  N-shape: PID ")
+    report = (out / "report.md").read_text()
+    for name in FIGURES + ["n_shape_nmpc.gif"]:
+        assert f"]({name})" in report, name  # every figure linked
 
 
 def test_plot_command_and_saved_runs(tmp_path, capsys):

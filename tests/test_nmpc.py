@@ -28,14 +28,13 @@ def check_real_time(m):
 
 def test_n_shape_faster_than_the_pid_with_real_stops():
     """Every stop reached by the true trajectory: within 7 cm and at rest (centre below 5 mm/s, motor below
-    0.05 rad/s) for 0.5 s.  (With that definition of a stop the tracking NMPC spends most of its time settling
-    at the stops: 72 s against the PID's 187 s.)"""
+    0.05 rad/s) for 0.5 s (measured: NMPC 36.4 s, PID 186.7 s)."""
     problem = load_problem(PROBLEMS / "n_shape.toml")
     nmpc = run_problem(problem, "nmpc").metrics
     pid = run_problem(problem, "pid").metrics
     assert nmpc["completed"] and len(nmpc["stop_errors"]) == 4
     assert max(nmpc["stop_errors"]) <= 0.07
-    assert nmpc["completion_time"] <= pid["completion_time"] / 2
+    assert nmpc["completion_time"] <= pid["completion_time"] / 4
     check_plant_limits(nmpc)
     check_real_time(nmpc)
     bound = sum(plan["fastest"] for plan in nmpc["plans"])  # the minimum-time OCP's bound

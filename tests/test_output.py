@@ -168,7 +168,7 @@ def test_simulate_reports_progress_every_half_second():
     simulate(problem.initial_state(), 3.0, params=problem.params, controller=controller,
              progress=lambda t, info: calls.append((t, info)))
     assert [t for t, _ in calls] == pytest.approx([0.5, 1.0, 1.5, 2.0, 2.5, 3.0])
-    assert all(info == {"stops": []} for _, info in calls)
+    assert all(info["stops"] == [] for _, info in calls)
 
 
 def test_run_progress_shows_on_a_terminal_and_nowhere_else(capsys, monkeypatch):

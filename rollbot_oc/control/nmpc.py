@@ -97,7 +97,7 @@ class TrackingWeights:
     def for_waypoints(cls) -> "TrackingWeights":
         """Stops: a firm hold on position, most of all at the end of the horizon (measured: it keeps
         every stop within 3.5 cm with the plant's masses and damping 10 % off the model)."""
-        return cls(position=1500.0, terminal=20.0)
+        return cls(position=1500.0, terminal=20.0, omega=40.0)
 
     @classmethod
     def for_circles(cls) -> "TrackingWeights":
@@ -154,6 +154,10 @@ class NMPCSettings:
         How long after a leg's plan ends a robot at rest away from its stop
         waits before it gets a new leg to the same stop, s (it never moves on
         from a stop it has not reached).
+    hold_radius : float
+        At the end of a leg within this distance of its stop (m), the NMPC holds
+        the robot where it arrived (damping its motion) instead of chasing the
+        last centimetres.
     plan_slack : float
         The tracked plans take this fraction longer than the fastest ones, and
         spend the spare time on a smoother motor profile (least effort) on the
@@ -188,6 +192,7 @@ class NMPCSettings:
     gyro_sigma: float = 2e-3
     rest_speed: float = 0.02
     hold_time: float = 3.0
+    hold_radius: float = 0.05
     plan_slack: float = 0.1
     entry_times: tuple = (5.0, 7.0, 10.0)
     max_solve_time: float | None = None
@@ -683,6 +688,7 @@ class NMPC:
                     "failed": 0, "tilt": [], "replans": 0}
         self._monitor = None
         self._pid_goal = None
+        self._anchor = None
         self._done = False
         self.estimator.reset()
 
@@ -760,7 +766,10 @@ class NMPC:
             return
         if local >= plan.T + self.settings.hold_time and self._monitor is not None and self._monitor.settled_away:
             # never move on from here: plan a new leg to the same stop from where the robot is
-            self.reference.segments[self.segment] = (self._leg(z, info["stop"]), info)
+            try:
+                self.reference.segments[self.segment] = (self._leg(z, info["stop"]), info)
+            except SolveFailed as exc:  # keep holding on the old plan; try again after hold_time
+                self.log["statuses"].append(f"replan failed: {exc.status}")
             self.segment_start = t_now
             self.warm, self.current = None, None
             self.log["replans"] += 1
@@ -768,6 +777,7 @@ class NMPC:
     def _replan(self, z, t_now: float, k: int):
         s = self.settings
         Zr, Ur = self.reference.sample(self.segment, t_now - self.segment_start, s.h, s.N, position=z[0:2])
+        self._settle(Zr, t_now, z)
         # q and -q are the same attitude: give the (continuous) reference the measurement's sign
         if float(Zr[2:6, 0] @ z[2:6]) < 0:
             Zr[2:6] *= -1.0
@@ -795,6 +805,24 @@ class NMPC:
         self.pid_until = t_now + s.pid_time
         self.warm, self.current, self.failures = None, None, 0
         self._pid_fresh = True
+
+    def _settle(self, Zr, t_now: float, z):
+        """Past a leg's end within ``hold_radius`` of its stop, hold the robot where it is: the reference
+        position becomes the position it had on arriving, so the NMPC damps the motion instead of chasing
+        a few centimetres a single motor cannot correct at rest."""
+        if self.reference is None or isinstance(self.mission, Circle):
+            return
+        plan, info = self.reference.segments[self.segment]
+        ended = t_now - self.segment_start + self.settings.h * np.arange(Zr.shape[1]) >= plan.T
+        if not ended[0]:
+            self._anchor = None
+            return
+        if self._anchor is None:
+            near = np.linalg.norm(z[REDUCED.position] - np.asarray(info["stop"], float)) <= self.settings.hold_radius
+            if not near:
+                return
+            self._anchor = z[REDUCED.position].copy()
+        Zr[REDUCED.position, :] = self._anchor[:, None]
 
     def _shift(self, x):
         Z, U = self.solver.split(x)

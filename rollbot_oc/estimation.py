@@ -60,6 +60,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from rollbot_oc.codegen import compiled
 from rollbot_oc.dynamics import NX, POS, QUAT, THETA_DOT, motor_speed_clip, rk4, symbolic_model
 from rollbot_oc.fastcall import FastFunction
 from rollbot_oc.params import NP, TILT, ParamView, RollbotParams
@@ -195,7 +196,7 @@ def imu_model(h: float, substeps: int) -> ca.Function:
 
 
 @functools.lru_cache(maxsize=None)
-def imu_update(h: float, substeps: int) -> ca.Function:
+def imu_update(h: float, substeps: int, compile_model: bool = False) -> ca.Function:
     """One IMU sample interval of the filter: prediction and update with the IMU and encoder readings.
 
     Parameters
@@ -204,6 +205,9 @@ def imu_update(h: float, substeps: int) -> ca.Function:
         Sample interval, s.
     substeps : int
         RK4 steps of the prediction.
+    compile_model : bool
+        Evaluate the model part (``imu_model``) as compiled C (``codegen.compiled``,
+        cached on disk; CasADi's virtual machine, with a warning, where that fails).
 
     Returns
     -------
@@ -217,7 +221,7 @@ def imu_update(h: float, substeps: int) -> ca.Function:
         of the error state's random walks (per second).  ``residual`` (7) and
         ``S`` (7, 7) are the innovation and its covariance.
     """
-    model = imu_model(h, substeps)
+    model = compiled(imu_model(h, substeps)) if compile_model else imu_model(h, substeps)
     xm, Pm, am, pm = ca.MX.sym("xa", NA), ca.MX.sym("P", NE, NE), ca.MX.sym("a"), ca.MX.sym("p", NP)
     zm, rm, qm = ca.MX.sym("z", NSIG), ca.MX.sym("r", NSIG), ca.MX.sym("qc", NE)
     predicted, Ah, H, residual = model(xm, am, pm, zm)
@@ -290,6 +294,9 @@ class EstimatorSettings:
     gyro_bias_std, accel_bias_std : float or None
         Prior standard deviations of the biases, rad/s and m/s^2; ``None``:
         the IMU's bound over sqrt(3) (its uniform distribution's).
+    compiled : bool
+        Evaluate the model part of the IMU update as compiled C (built once
+        and cached, see ``codegen``); False: CasADi's virtual machine.
     """
 
     omega_noise: float = 0.05
@@ -304,6 +311,7 @@ class EstimatorSettings:
     tilt_std: float = math.sin(math.radians(2.0))
     gyro_bias_std: float | None = None
     accel_bias_std: float | None = None
+    compiled: bool = True
 
     @classmethod
     def exact_model(cls) -> "EstimatorSettings":
@@ -317,6 +325,8 @@ class EstimatorSettings:
 
     def __post_init__(self):
         for name, value in vars(self).items():
+            if name == "compiled":
+                continue
             if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"EstimatorSettings: {name} = {value!r} must be a finite number >= 0")
 
@@ -386,7 +396,7 @@ class ErrorStateEKF:
         imu = sensing.imu
         self.samples = imu.samples_per_period(dt)
         self.h = dt / self.samples
-        self._imu = FastFunction(imu_update(self.h, max(1, round(self.h / ESTIMATOR_STEP))))
+        self._imu = FastFunction(imu_update(self.h, max(1, round(self.h / ESTIMATOR_STEP)), s.compiled))
         self._mocap = FastFunction(mocap_update())
         self.p = params.vector()
         self.max_speed = float(ParamView(self.p).max_speed)

@@ -403,20 +403,22 @@ class OnboardSensors:
         return np.concatenate([self.gyro_bias, self.accel_bias])
 
     def read_imu(self, signals) -> list[ImuReading]:
-        """Readings of one control period from the noise-free ``signals`` (7, samples) of ``body_signals``."""
-        imu, rng, h = self.config.imu, self.rng, self.h
+        """Readings of one control period from the noise-free ``signals`` (7, samples) of ``body_signals``.
+
+        Each sample first walks the biases, then adds them and the white noise (one draw of 12 normal
+        numbers per sample: bias walks, gyroscope noise, accelerometer noise).
+        """
+        imu, h = self.config.imu, self.h
         sigma_g, sigma_a = imu.sample_noise(self.dt)
-        walk_g, walk_a = imu.gyro_bias_walk * math.sqrt(h), imu.accel_bias_walk * math.sqrt(h)
+        scale = np.repeat([imu.gyro_bias_walk * math.sqrt(h), imu.accel_bias_walk * math.sqrt(h), sigma_g, sigma_a], 3)
         signals = np.asarray(signals, float).reshape(NSIG, -1, order="F")
+        draws = self.rng.normal(size=(signals.shape[1], 12)) * scale
         out = []
-        for i in range(signals.shape[1]):
-            if walk_g:
-                self.gyro_bias = self.gyro_bias + rng.normal(0.0, walk_g, 3)
-            if walk_a:
-                self.accel_bias = self.accel_bias + rng.normal(0.0, walk_a, 3)
-            gyro = signals[0:3, i] + self.gyro_bias + (rng.normal(0.0, sigma_g, 3) if sigma_g else 0.0)
-            accel = signals[3:6, i] + self.accel_bias + (rng.normal(0.0, sigma_a, 3) if sigma_a else 0.0)
-            out.append(ImuReading(gyro, accel, self.config.encoder.read(signals[6, i])))
+        for i, d in enumerate(draws):
+            self.gyro_bias = self.gyro_bias + d[0:3]
+            self.accel_bias = self.accel_bias + d[3:6]
+            out.append(ImuReading(signals[0:3, i] + self.gyro_bias + d[6:9], signals[3:6, i] + self.accel_bias + d[9:12],
+                                  self.config.encoder.read(signals[6, i])))
         return out
 
     def capture(self, step: int, x) -> None:

@@ -18,6 +18,12 @@ stays within ``max_speed`` at the end of the period and within
 can deliver (``SymbolicModel.accel_bounds``): the motor saturates, it does
 not fail.
 
+Sensing.  The controller sees either measurements (``Sensor``: motion
+capture, a gyroscope and the encoder with noise and latency) or, with
+onboard sensing (``onboard.OnboardSensing``), the estimate of a filter fed by
+an IMU sampled inside each period, the encoder and optional motion capture
+(``plant_step(..., samples=m)`` gives the noise-free sensor signals).
+
 Contact.  The equations assume the shell stays on the floor without slipping.
 The simulator evaluates the no-jump margin (normal force) and the no-slide
 margin (friction cone) at every step; where one turns negative the model no

@@ -68,7 +68,8 @@ from rollbot_oc.rotations import quat_multiply
 from rollbot_oc.sensors import NSIG, Capture, ImuReading, SensingConfig, body_signals
 
 __all__ = ["NA", "NE", "AUG", "ERR", "ERROR_NAMES", "ERROR_UNITS", "ESTIMATOR_STEP", "EstimatorSettings",
-           "Estimate", "ErrorStateEKF", "boxplus", "boxminus", "imu_model", "imu_update", "mocap_update", "error_between"]
+           "Estimate", "ErrorStateEKF", "boxplus", "boxminus", "imu_model", "imu_update", "mocap_update",
+           "error_between"]
 
 NA, NE = NX + 8, NX + 7
 ESTIMATOR_STEP = 0.005  # s: the RK4 step of the prediction (the plant's own: 2 steps per 10 ms period)

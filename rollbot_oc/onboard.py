@@ -27,7 +27,7 @@ import numpy as np
 from scipy import stats
 
 from rollbot_oc.dynamics import POS
-from rollbot_oc.estimation import ERR, NA, NE, ErrorStateEKF, Estimate, EstimatorSettings, error_between
+from rollbot_oc.estimation import NA, NE, ErrorStateEKF, Estimate, EstimatorSettings, error_between
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.sensors import OnboardSensors, SensingConfig

@@ -47,7 +47,7 @@ from __future__ import annotations
 import functools
 import math
 from collections import deque
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import ClassVar
 
 import casadi as ca
@@ -417,8 +417,9 @@ class OnboardSensors:
         for i, d in enumerate(draws):
             self.gyro_bias = self.gyro_bias + d[0:3]
             self.accel_bias = self.accel_bias + d[3:6]
-            out.append(ImuReading(signals[0:3, i] + self.gyro_bias + d[6:9], signals[3:6, i] + self.accel_bias + d[9:12],
-                                  self.config.encoder.read(signals[6, i])))
+            gyro = signals[0:3, i] + self.gyro_bias + d[6:9]
+            accel = signals[3:6, i] + self.accel_bias + d[9:12]
+            out.append(ImuReading(gyro, accel, self.config.encoder.read(signals[6, i])))
         return out
 
     def capture(self, step: int, x) -> None:

@@ -55,7 +55,7 @@ from rollbot_oc.rotations import (
 
 __all__ = [
     "STATE_NAMES", "STATE_UNITS", "NX", "NU", "NW", "POS", "QUAT", "OMEGA", "THETA", "THETA_DOT",
-    "PointMass", "ShellDynamics", "shell_dynamics", "pendulum_mass", "gravity_vector", "rk4",
+    "PointMass", "ShellDynamics", "shell_dynamics", "pendulum_mass", "gravity_vector", "rk4", "motor_speed_clip",
     "SymbolicModel", "symbolic_model", "RollbotModel", "rest_state",
     "NZ", "REDUCED_NAMES", "ReducedModel", "reduced_model", "to_reduced", "from_reduced",
     "StateSlices", "FULL", "REDUCED",
@@ -220,6 +220,12 @@ def pendulum_mass(theta, theta_dot, theta_ddot, *, m, r0, phi) -> PointMass:
 def gravity_vector(g, tilt_x, tilt_y):
     """Gravity in the floor frame, m/s^2, from its in-plane part per g (``RollbotParams.tilt_x``, ``tilt_y``)."""
     return g * ca.vertcat(tilt_x, tilt_y, -ca.sqrt(1 - tilt_x**2 - tilt_y**2))
+
+
+def motor_speed_clip(a, theta_dot, max_speed, dt):
+    """Motor acceleration ``a`` (rad/s^2) clipped so that a period ``dt`` (s) held from driving speed
+    ``theta_dot`` ends within ``+-max_speed`` (rad/s): the motor driver's speed limit (CasADi)."""
+    return ca.fmin(ca.fmax(a, (-max_speed - theta_dot) / dt), (max_speed - theta_dot) / dt)
 
 
 def rk4(rhs, x, h, substeps: int, *args):

@@ -31,12 +31,35 @@ Schema (TOML; SI units, degrees only in keys ending in ``_deg``)::
     speeds    = [0.5, 1.0, 3.0]          # rad/s
     ramp_rate = 0.5                      # rad/s^2
 
-    [sensor]                             # optional: measurement noise and latency (seeded)
+    [sensor]                             # optional: how the controller learns the state (seeded)
+    mode           = "mocap"             # "mocap" (default), "imu" or "imu+mocap"
+    # mode "mocap": the controller sees motion capture, a gyroscope and the encoder directly
     position_noise = 0.001               # m
     angle_noise    = 0.003               # rad
     gyro_noise     = 0.0                 # rad/s
     speed_noise    = 0.0                 # rad/s
     latency        = 1                   # control periods
+    # modes "imu" and "imu+mocap": the controller sees the estimator's estimate (rollbot_oc.estimation)
+    encoder_counts = 4096                # counts per revolution
+    [sensor.imu]                         # body-fixed IMU at the shell centre (rollbot_oc.sensors.ImuModel)
+    rate                   = 100.0       # Hz, a whole multiple of the control rate
+    gyro_noise_density_deg = 0.005       # deg/s/sqrt(Hz)
+    gyro_bias_deg          = 0.5         # deg/s, bound of the initial bias on each axis
+    gyro_bias_walk_deg     = 0.001       # deg/s/sqrt(s)
+    accel_noise_density    = 0.00147     # m/s^2/sqrt(Hz) (150 ug/sqrt(Hz))
+    accel_bias             = 0.098       # m/s^2, bound of the initial bias on each axis (10 mg)
+    accel_bias_walk        = 0.0001      # m/s^2/sqrt(s)
+    [sensor.mocap]                       # mode "imu+mocap" (rollbot_oc.sensors.MocapModel)
+    rate           = 100.0               # Hz, its period a whole number of control periods
+    latency        = 0.01                # s
+    position_noise = 0.001               # m
+    angle_noise    = 0.003               # rad
+    outage_length  = 1.0                 # s, each outage
+    outage_every   = 10.0                # s, outages start at 10, 20, 30, ... s (0: none)
+    outage_times   = [35.0]              # s, further outage starts
+
+    Each key of [sensor] serves the modes named above; a key the chosen mode
+    does not use is refused (naming the mode that uses it).
 
     [params]                             # optional: robot parameter overrides (parameter-file keys)
 
@@ -61,8 +84,11 @@ from rollbot_oc.control.missions import (
 )
 from rollbot_oc.dynamics import OMEGA, rest_state
 from rollbot_oc.errors import ConfigError, NumericalFailure
+from rollbot_oc.estimation import EstimatorSettings
+from rollbot_oc.onboard import OnboardSensing
 from rollbot_oc.params import RollbotParams, read_toml
 from rollbot_oc.progress import RunProgress, progress_bar, working
+from rollbot_oc.sensors import MODES, EncoderModel, ImuModel, MocapModel, SensingConfig
 from rollbot_oc.simulate import Sensor, SimulationResult, simulate
 from rollbot_oc.summary import comparison_row, comparison_table
 
@@ -84,8 +110,10 @@ _TABLE_KEYS = {
     "circle": {"centre", "radius", "settle_time", "reach_tolerance"},
     "waypoints": {"stops", "stop_tolerance"},
     "open_loop": {"speeds", "ramp_rate"},
-    "sensor": {"position_noise", "angle_noise", "gyro_noise", "speed_noise", "latency"},
+    "sensor": {"mode", "position_noise", "angle_noise", "gyro_noise", "speed_noise", "latency", "encoder_counts",
+               "imu", "mocap"},
 }
+_MOCAP_MODE_KEYS = ("position_noise", "angle_noise", "gyro_noise", "speed_noise", "latency")
 
 
 @dataclass(frozen=True)
@@ -116,7 +144,10 @@ class Problem:
     ramp_rate : float
         Open-loop problems: driving-speed ramp, rad/s^2.
     sensor : dict
-        ``Sensor`` settings (noise, latency); the seed comes with each run.
+        ``Sensor`` settings (noise, latency) of mode ``"mocap"``; the seed comes with each run.
+    sensing : SensingConfig
+        The sensing mode and, for the onboard modes, the IMU, encoder and
+        motion-capture models.
     source : str
         Where the problem came from (file path).
     """
@@ -135,6 +166,7 @@ class Problem:
     speeds: tuple = ()
     ramp_rate: float = 0.5
     sensor: dict = field(default_factory=dict)
+    sensing: SensingConfig = field(default_factory=SensingConfig)
     source: str = "<problem>"
 
     def initial_state(self) -> np.ndarray:
@@ -291,8 +323,9 @@ def problem_from_dict(data: dict, source: str = "<problem>", base: RollbotParams
               ("position_noise", "angle_noise", "gyro_noise", "speed_noise") if key in sensor_table}
     if "latency" in sensor_table:
         sensor["latency"] = _number(sensor_table, "latency", f"{source} [sensor]", 0, 100, integer=True)
+    sensing = _sensing(sensor_table, f"{source} [sensor]", dt)
     common = dict(name=name, kind=kind, duration=duration, dt=dt, params=params, description=description,
-                  start_position=position, start_heading=heading, sensor=sensor, source=source)
+                  start_position=position, start_heading=heading, sensor=sensor, sensing=sensing, source=source)
     table = data[kind]
     where = f"{source} [{kind}]"
     if kind == "circle":
@@ -310,6 +343,54 @@ def problem_from_dict(data: dict, source: str = "<problem>", base: RollbotParams
     speeds = tuple(_number({"s": s}, "s", f"{where} speeds", 1e-3, params.max_speed) for s in speeds)
     ramp = _number(table, "ramp_rate", where, 1e-3, 100.0, default=0.5)
     return Problem(speeds=speeds, ramp_rate=ramp, **common)
+
+
+def _sensing(table: dict, where: str, dt: float) -> SensingConfig:
+    """The ``[sensor]`` table's mode and onboard sensors, each key checked against the mode that uses it."""
+    mode = table.get("mode", "mocap")
+    if mode not in MODES:
+        raise ConfigError(f"{where}: key 'mode' = {mode!r}; valid are {', '.join(repr(m) for m in MODES)}")
+    onboard = mode != "mocap"
+    unused = [key for key in _MOCAP_MODE_KEYS if key in table] if onboard else \
+        [key for key in ("encoder_counts", "imu", "mocap") if key in table]
+    if mode == "imu" and "mocap" in table:
+        unused.append("mocap")
+    if unused:
+        users = {"mocap": "mode 'imu+mocap'", "imu": "modes 'imu' and 'imu+mocap'",
+                 "encoder_counts": "modes 'imu' and 'imu+mocap'"}
+        key = unused[0]
+        user = users.get(key, "mode 'mocap'")
+        raise ConfigError(f"{where}: key '{key}' is not used in mode {mode!r}: it serves {user}; "
+                          "remove it or change 'mode'")
+    imu = _sensor_model(ImuModel, _table(table, "imu", where), f"{where[:-1]}.imu]")
+    mocap = _sensor_model(MocapModel, _table(table, "mocap", where), f"{where[:-1]}.mocap]")
+    counts = _number(table, "encoder_counts", where, 16, 1 << 30, integer=True, default=4096)
+    try:
+        config = SensingConfig(mode, imu, EncoderModel(counts), mocap)
+        config.check_period(dt)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    return config
+
+
+def _sensor_model(cls, table: dict, where: str):
+    """A sensor model (``ImuModel``, ``MocapModel``) from its table: its ``FILE_KEYS`` in file units."""
+    extra = {"outage_times"} if cls is MocapModel else set()
+    _check_keys(table, set(cls.FILE_KEYS) | extra, where)
+    values = {}
+    for key, (attr, scale, low, high, _unit) in cls.FILE_KEYS.items():
+        if key in table:
+            values[attr] = _number(table, key, where, low, high) * scale
+    if "outage_times" in table:
+        times = table["outage_times"]
+        if not (isinstance(times, list) and all(isinstance(t, (int, float)) and not isinstance(t, bool)
+                                                and math.isfinite(t) and 0 <= t <= 3600 for t in times)):
+            raise ConfigError(f"{where}: key 'outage_times' = {times!r} must be a list of times in [0, 3600] s")
+        values["outage_times"] = tuple(float(t) for t in times)
+    try:
+        return cls(**values)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
 
 
 def _problem_params(data: dict, source: str, base: RollbotParams | None) -> RollbotParams:
@@ -369,7 +450,8 @@ class RunResult:
 
 
 def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: RollbotParams | None = None,
-                duration: float | None = None, show_progress: bool | None = None, **options) -> RunResult:
+                duration: float | None = None, show_progress: bool | None = None,
+                estimator: EstimatorSettings | None = None, **options) -> RunResult:
     """Run a circle or waypoint problem in closed loop and compute its metrics.
 
     Parameters
@@ -386,6 +468,9 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
     show_progress : bool or None
         Progress on stderr (planning, then simulated time and stops reached):
         True shows it, False hides it, None only on a terminal (``progress``).
+    estimator : EstimatorSettings, optional
+        The filter's settings in the onboard sensing modes (``problem.sensing``);
+        the filter believes in the controller's model of the robot.
     **options
         Passed to ``make_controller``.
 
@@ -401,7 +486,11 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
         problem = problem.with_duration(duration)
     name = controller if isinstance(controller, str) else type(controller).__name__
     ctrl = make_controller(controller, problem, params, **options) if isinstance(controller, str) else controller
-    sensor = Sensor(seed=seed, **problem.sensor)
+    if problem.sensing.onboard:
+        believed = params or problem.params.replace(slope=0.0)
+        sensor = OnboardSensing(problem.sensing, believed, problem.dt, seed=seed, settings=estimator)
+    else:
+        sensor = Sensor(seed=seed, **problem.sensor)
     prepare = getattr(ctrl, "prepare", None)
     label = f"{problem.name} {name}"
     if callable(prepare):  # offline planning happens before the run starts
@@ -456,7 +545,11 @@ def compute_metrics(problem: Problem, result: SimulationResult, centres=None) ->
         "torque_limit_violation": bool(np.abs(result.motor_torque).max(initial=0.0) > problem.params.max_torque
                                        * (1 + 1e-6)),
         "speed_limit_violation": bool(np.abs(result.driving_speed).max() > problem.params.max_speed * (1 + 1e-9)),
+        "sensing": problem.sensing.mode,
     }
+    if result.estimation is not None:
+        error = result.estimation.position_error(result.x)
+        out.update(estimation_error_max=float(error.max()), estimation_error_final=float(error[-1]))
     mission = problem.mission
     if isinstance(mission, Circle):
         out.update(_circle_metrics(problem, mission, result))
@@ -496,6 +589,8 @@ def _waypoint_metrics(problem: Problem, waypoints: Waypoints, result: Simulation
                           StopRule(tolerance=waypoints.stop_tolerance))
     errors = [float(stop["error"]) for stop in stops]
     out = {"stop_errors": errors, "stop_times": [float(stop["time"]) for stop in stops]}
+    if result.estimation is not None:  # the robot's belief is no measurement: the true position counts
+        out.update(_onboard_stop_metrics(stops, result))
     if len(stops) == len(waypoints.stops):
         path = [problem.start_position] + waypoints.stops
         length = sum(float(np.linalg.norm(b - a)) for a, b in zip(path[:-1], path[1:]))
@@ -503,6 +598,22 @@ def _waypoint_metrics(problem: Problem, waypoints: Waypoints, result: Simulation
         out["avg_speed"] = length / out["completion_time"]
         out["completed"] = True
     return out
+
+
+def _onboard_stop_metrics(stops: list, result: SimulationResult) -> dict:
+    """Stop errors of the true position, and how far the estimate was off at each stop (onboard sensing)."""
+    record = result.estimation
+    steps = [min(int(round(stop["time"] / result.dt)), len(record) - 1) for stop in stops]
+    truth = [result.x[0:2, k] for k in steps]
+    estimated = [record.estimate[0:2, k] for k in steps]
+    return {
+        "stop_errors": [float(np.linalg.norm(s - np.asarray(stop["point"]))) for s, stop in zip(truth, stops)],
+        "estimated_stop_errors": [float(np.linalg.norm(e - np.asarray(stop["point"])))
+                                  for e, stop in zip(estimated, stops)],
+        "estimation_errors": [float(np.linalg.norm(s - e)) for s, e in zip(truth, estimated)],
+        "max_estimation_error": max((float(np.linalg.norm(s - e)) for s, e in zip(truth, estimated)), default=None),
+        "stop_position_std": [float(np.sqrt(np.trace(record.position_covariance[k]))) for k in steps],
+    }
 
 
 def run_open_loop(problem: Problem, show_progress: bool | None = None) -> dict:

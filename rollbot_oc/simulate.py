@@ -18,6 +18,12 @@ stays within ``max_speed`` at the end of the period and within
 can deliver (``SymbolicModel.accel_bounds``): the motor saturates, it does
 not fail.
 
+Sensing.  The controller sees either measurements (``Sensor``: motion
+capture, a gyroscope and the encoder with noise and latency) or, with
+onboard sensing (``onboard.OnboardSensing``), the estimate of a filter fed by
+an IMU sampled inside each period, the encoder and optional motion capture
+(``plant_step(..., samples=m)`` gives the noise-free sensor signals).
+
 Contact.  The equations assume the shell stays on the floor without slipping.
 The simulator evaluates the no-jump margin (normal force) and the no-slide
 margin (friction cone) at every step; where one turns negative the model no
@@ -41,13 +47,14 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.dynamics import (
-    NU, NW, NX, OMEGA, POS, QUAT, STATE_NAMES, THETA, THETA_DOT, RollbotModel, rk4, symbolic_model,
+    NU, NW, NX, OMEGA, POS, QUAT, STATE_NAMES, THETA, THETA_DOT, RollbotModel, motor_speed_clip, rk4, symbolic_model,
 )
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.fastcall import FastFunction
+from rollbot_oc.onboard import EstimationRecord, OnboardSensing
 from rollbot_oc.outputs import save_npz
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
-from rollbot_oc.rotations import quat_multiply_np
+from rollbot_oc.sensors import body_signals, rotate_randomly
 
 __all__ = [
     "Observation", "Command", "Controller", "Sensor", "Event", "SimulationResult",
@@ -60,13 +67,25 @@ NDIAG = len(DIAG_NAMES)
 PARAM_INDEX = {name: i for i, name in enumerate(PARAM_VECTOR_FIELDS)}
 
 
-def _period_integrator(dt: float, substeps: int, method: str) -> ca.Function:
-    """``(x, a, p, w) -> x(dt)`` with the acceleration command ``a`` held over the period."""
+def _period_integrator(dt: float, substeps: int, method: str, samples: int = 0) -> ca.Function:
+    """``(x, a, p, w) -> x(dt)`` with the acceleration command ``a`` held over the period.
+
+    With ``samples = m > 0`` (RK4 only) the period is integrated in ``m`` equal parts of
+    ``ceil(substeps / m)`` steps each and the Function also returns the states at their ends (NX, m).
+    """
     sym = symbolic_model()
     npar = sym.f.size1_in(2)
     if method == "rk4":
         x, a, p, w = ca.SX.sym("x", NX), ca.SX.sym("a", NU), ca.SX.sym("p", npar), ca.SX.sym("w", NW)
-        return ca.Function("rk4_period", [x, a, p, w], [rk4(sym.plant_rhs, x, dt, substeps, a, p, w)])
+        if not samples:
+            return ca.Function("rk4_period", [x, a, p, w], [rk4(sym.plant_rhs, x, dt, substeps, a, p, w)])
+        ends, xi = [], x
+        for _ in range(samples):
+            xi = rk4(sym.plant_rhs, xi, dt / samples, -(-substeps // samples), a, p, w)
+            ends.append(xi)
+        return ca.Function("rk4_period_sampled", [x, a, p, w], [xi, ca.horzcat(*ends)])
+    if samples:
+        raise ValueError(f"plant_step: samples = {samples} needs method 'rk4', not {method!r}")
     if method == "cvodes":
         x, a, p, w = ca.SX.sym("x", NX), ca.SX.sym("a", NU), ca.SX.sym("p", npar), ca.SX.sym("w", NW)
         ode = {"x": x, "p": ca.vertcat(a, p, w), "ode": sym.plant_rhs(x, a, p, w)}
@@ -77,7 +96,7 @@ def _period_integrator(dt: float, substeps: int, method: str) -> ca.Function:
 
 
 @functools.lru_cache(maxsize=None)
-def plant_step(dt: float = 0.01, substeps: int = 4, method: str = "rk4") -> ca.Function:
+def plant_step(dt: float = 0.01, substeps: int = 4, method: str = "rk4", samples: int = 0) -> ca.Function:
     """The plant over one control period, as a cached CasADi Function.
 
     Parameters
@@ -88,6 +107,12 @@ def plant_step(dt: float = 0.01, substeps: int = 4, method: str = "rk4") -> ca.F
         RK4 steps per period (``method="rk4"``).
     method : {"rk4", "cvodes"}
         Fixed-step RK4, or CVODES with relative and absolute tolerance 1e-11.
+    samples : int
+        Onboard sensor samples per period (RK4 only; 0: none).  The period is
+        then integrated in ``samples`` equal parts (``ceil(substeps / samples)``
+        RK4 steps each, the same steps as without samples when ``samples``
+        divides ``substeps``) and the noise-free sensor signals at the end of
+        each part are returned too (``sensors.body_signals``).
 
     Returns
     -------
@@ -96,25 +121,31 @@ def plant_step(dt: float = 0.01, substeps: int = 4, method: str = "rk4") -> ca.F
         commanded motor acceleration ``a_cmd`` (rad/s^2), and diagnostics at
         the start of the period in the order of ``DIAG_NAMES`` (applied
         acceleration, motor torque N m, ground force N, no-jump and no-slide
-        margins N).
+        margins N); with ``samples`` also ``signals`` (7, samples).
     """
-    if not dt > 0 or substeps < 1:
-        raise ValueError(f"plant_step: dt = {dt} must be > 0 s and substeps = {substeps} must be >= 1")
+    if not dt > 0 or substeps < 1 or samples < 0:
+        raise ValueError(f"plant_step: dt = {dt} must be > 0 s, substeps = {substeps} >= 1 and samples = "
+                         f"{samples} >= 0")
     sym = symbolic_model()
     npar = sym.f.size1_in(2)
-    integrate = _period_integrator(dt, substeps, method)
+    integrate = _period_integrator(dt, substeps, method, samples)
     x, a_cmd, p, w = ca.MX.sym("x", NX), ca.MX.sym("a_cmd", NU), ca.MX.sym("p", npar), ca.MX.sym("w", NW)
-    max_speed = p[PARAM_INDEX["max_speed"]]
-    # Clip so that the driving speed ends the period within its limit.
-    a = ca.fmin(ca.fmax(a_cmd, (-max_speed - x[THETA_DOT]) / dt), (max_speed - x[THETA_DOT]) / dt)
-    xk = integrate(x, a, p, w)
+    a = motor_speed_clip(a_cmd, x[THETA_DOT], p[PARAM_INDEX["max_speed"]], dt)
+    if samples:
+        xk, ends = integrate(x, a, p, w)
+    else:
+        xk = integrate(x, a, p, w)
     q = xk[QUAT]
     xk = ca.vertcat(xk[0:2], q / ca.norm_2(q), xk[6:])
     bounds = sym.accel_bounds(x, p, w)
     a_applied = ca.fmin(ca.fmax(a, bounds[0]), bounds[1])
     diag = ca.vertcat(a_applied, sym.motor_torque(x, a_applied, p, w), sym.reaction(x, a_applied, p, w),
                       sym.margins(x, a_applied, p, w))
-    step = ca.Function("plant_step", [x, a_cmd, p, w], [xk, diag], ["x", "a_cmd", "p", "w"], ["x_next", "diag"])
+    outs, names = [xk, diag], ["x_next", "diag"]
+    if samples:
+        outs.append(ca.horzcat(*[body_signals()(ends[:, i], a, p, w) for i in range(samples)]))
+        names.append("signals")
+    step = ca.Function("plant_step", [x, a_cmd, p, w], outs, ["x", "a_cmd", "p", "w"], names)
     return step.expand() if method == "rk4" else step
 
 
@@ -165,6 +196,10 @@ class Observation:
         Motor angle, rad (encoder).
     theta_dot : float
         Driving speed, rad/s (encoder).
+    estimate : estimation.Estimate or None
+        With onboard sensing (``onboard.OnboardSensing``) the fields above are
+        the filter's estimate, and this is the whole of it: biases, floor
+        tilt and covariance; None when they are measurements.
     """
 
     t: float
@@ -173,6 +208,7 @@ class Observation:
     omega: np.ndarray
     theta: float
     theta_dot: float
+    estimate: object = None
 
     @property
     def state(self) -> np.ndarray:
@@ -262,15 +298,11 @@ class Sensor:
     def measure(self, t: float, x: np.ndarray) -> Observation:
         """A noisy observation of state ``x`` (11,) at time ``t`` (s)."""
         rng = self.rng
-        q = x[QUAT]
-        if self.angle_noise > 0:
-            dq = np.concatenate([[1.0], 0.5 * rng.normal(0.0, self.angle_noise, 3)])
-            q = quat_multiply_np(dq, q)
-            q /= np.linalg.norm(q)
+        q = rotate_randomly(x[QUAT], self.angle_noise, rng)
         return Observation(
             t=t,
             position=x[POS] + rng.normal(0.0, self.position_noise, 2) if self.position_noise else x[POS].copy(),
-            quaternion=q.copy(),
+            quaternion=q,
             omega=x[OMEGA] + rng.normal(0.0, self.gyro_noise, 3) if self.gyro_noise else x[OMEGA].copy(),
             theta=float(x[THETA]),
             theta_dot=float(x[THETA_DOT] + (rng.normal(0.0, self.speed_noise) if self.speed_noise else 0.0)),
@@ -322,6 +354,9 @@ class SimulationResult:
         Wall-clock time the controller took in each period, s (zeros in open loop).
     info : dict
         Extra records from the controller (for example solver statistics).
+    estimation : onboard.EstimationRecord or None
+        With onboard sensing: the estimate at every control step, its
+        uncertainty and the sensors' true biases.
     """
 
     params: RollbotParams
@@ -334,6 +369,7 @@ class SimulationResult:
     events: list = field(default_factory=list)
     step_times: np.ndarray | None = None
     info: dict = field(default_factory=dict)
+    estimation: object = None
 
     @property
     def position(self) -> np.ndarray:
@@ -399,6 +435,7 @@ class SimulationResult:
             event_times=np.array([e.time for e in self.events]),
             event_margins=np.array([e.margin for e in self.events]),
             params_file=np.array(json.dumps(self.params.to_file_dict())),
+            **(self.estimation.to_arrays() if self.estimation is not None else {}),
         )
 
     @classmethod
@@ -451,7 +488,9 @@ class SimulationResult:
         if not (unit and np.all(np.diff(t) > 0) and np.abs(x[POS]).max() <= 1e7):
             raise ConfigError(f"{source}: not a saved run (times not increasing, quaternions not of unit norm or "
                               "positions beyond 10^7 m)")
-        return cls(params, dt, t, x, arrays["command"], arrays["speed_command"], arrays["diag"], events, step_times)
+        estimation = EstimationRecord.from_arrays(data, source)
+        return cls(params, dt, t, x, arrays["command"], arrays["speed_command"], arrays["diag"], events, step_times,
+                   estimation=estimation)
 
 
 def _schedule(value, times: np.ndarray, name: str) -> np.ndarray:
@@ -520,8 +559,10 @@ def simulate(x0, duration: float, *, params: RollbotParams | None = None, contro
         RK4 steps per period (2 gives 5 ms steps at 100 Hz; see module doc).
     method : {"rk4", "cvodes"}
         Integrator.
-    sensor : Sensor, optional
-        Noise and latency of what the controller sees; perfect by default.
+    sensor : Sensor or OnboardSensing, optional
+        What the controller sees: measurements with noise and latency
+        (``Sensor``; perfect by default), or the estimate from onboard sensors
+        (``onboard.OnboardSensing``, recorded in ``SimulationResult.estimation``).
     wrench : array_like (6,), optional
         Constant external force (N) and torque (N m) on the shell, floor frame.
     stop_on_event : bool
@@ -561,18 +602,23 @@ def simulate(x0, duration: float, *, params: RollbotParams | None = None, contro
         diag = np.array(diag)
         command = cmd if speed is None else (speed_cmd - x[THETA_DOT, :-1]) / dt
         step_times = np.zeros(steps)
-        info = {}
+        info, estimation = {}, None
     else:
+        sensor = sensor or Sensor()
+        samples = sensor.samples if isinstance(sensor, OnboardSensing) else 0
         x, command, speed_cmd, diag, step_times, info = _closed_loop(
-            x0, steps, dt, controller, plant_step(dt, substeps, method), p, w, sensor or Sensor(), stop_on_event,
+            x0, steps, dt, controller, plant_step(dt, substeps, method, samples), p, w, sensor, stop_on_event,
             progress)
+        estimation = sensor.record() if samples else None
     events = _first_events(times, diag)
     end = diag.shape[1]
     if events and stop_on_event:
         end = int(round(events[0].time / dt)) + 1
         events = [e for e in events if e.time <= events[0].time]
+    if estimation is not None:
+        estimation = estimation.head(end)
     return SimulationResult(params, dt, times[:end + 1], x[:, :end + 1], command[:end], speed_cmd[:end],
-                            diag[:, :end], events, step_times[:end], info)
+                            diag[:, :end], events, step_times[:end], info, estimation)
 
 
 def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event, progress=None):
@@ -584,18 +630,24 @@ def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event, p
     step_times = np.empty(steps)
     step = FastFunction(step)
     controller.reset()
+    onboard = isinstance(sensor, OnboardSensing)
+    if onboard:
+        sensor.start(x0)
+    signals = None
     end = steps
     report_every = max(1, int(round(0.5 / dt)))  # progress: every 0.5 s of simulated time
     for k in range(steps):
-        seen = max(0, k - sensor.latency)
-        obs = sensor.measure(seen * dt, x[:, seen])
+        obs = _observe(sensor, k, dt, x, signals, command[k - 1] if k else 0.0)
         start = time.perf_counter()
         cmd = controller(obs)
         step_times[k] = time.perf_counter() - start
         if cmd.speed is not None:
             speed_cmd[k] = cmd.speed
         command[k] = cmd.acceleration(x[THETA_DOT, k], dt)
-        x[:, k + 1], diag[:, k] = step(x[:, k], command[k], p, w)
+        if onboard:
+            x[:, k + 1], diag[:, k], signals = step(x[:, k], command[k], p, w)
+        else:
+            x[:, k + 1], diag[:, k] = step(x[:, k], command[k], p, w)
         if (stop_on_event and (diag[5, k] <= 0 or diag[6, k] < 0)) or getattr(controller, "done", False):
             end = k + 1
             break
@@ -603,6 +655,16 @@ def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event, p
             progress((k + 1) * dt, _controller_info(controller))
     return (x[:, :end + 1], command[:end], speed_cmd[:end], diag[:, :end], step_times[:end],
             _controller_info(controller))
+
+
+def _observe(sensor, k: int, dt: float, x, signals, a_prev: float) -> Observation:
+    """What the controller sees at control step ``k``: a (delayed, noisy) measurement or the onboard estimate."""
+    if not isinstance(sensor, OnboardSensing):
+        seen = max(0, k - sensor.latency)
+        return sensor.measure(seen * dt, x[:, seen])
+    est = sensor.observe(k, x[:, k], signals, a_prev)
+    s = est.state
+    return Observation(est.t, s[POS], s[QUAT], s[OMEGA], float(s[THETA]), float(s[THETA_DOT]), estimate=est)
 
 
 def _controller_info(controller) -> dict:

@@ -119,6 +119,7 @@ RUN_FIELDS = (
     Field("completion_time", "completion time", "s", ".1f"),
     Field("avg_speed", "average speed", "m/s", ".3f"),
     Field("max_stop_error", "largest stop error", "cm", ".1f"),
+    Field("max_estimation_error_cm", "largest estimation error at a stop", "cm", ".1f"),
     Field("avg_deviation_cm", "average deviation", "cm", ".2f"),
     Field("max_deviation_cm", "largest deviation", "cm", ".2f"),
     Field("max_motor_torque", "largest motor torque", "N m", ".3f"),
@@ -161,6 +162,8 @@ def comparison_row(run) -> dict:
            "avg_deviation_cm": _cm(m["avg_deviation"]), "max_deviation_cm": _cm(m["max_deviation"]),
            "max_motor_torque": m["max_motor_torque"], "min_normal_force": m["min_normal_force"],
            "min_slide_margin": m["min_slide_margin"]}
+    if m.get("max_estimation_error") is not None:  # onboard sensing
+        row["max_estimation_error_cm"] = 100 * m["max_estimation_error"]
     if "solve_time_median" in m:  # an optimising controller: its solves, fallbacks and plans
         row.update(solve_median_ms=1e3 * m["solve_time_median"], solve_p95_ms=1e3 * m["solve_time_p95"],
                    fallbacks=f"{m['fallback_shifted']} / {m['fallback_pid']}")

@@ -96,6 +96,9 @@ def _add_scenario(p):
     p.add_argument("--seed", type=_seed, default=0, metavar="N", help=f"seed of the sensor noise, in [0, {MAX_SEED}] "
                    "(default 0)")
     p.add_argument("--duration", type=_finite, metavar="T", help="override the problem's duration, s, in [1, 3600]")
+    p.add_argument("--realtime", action="store_true", help="NMPC: judge late solves by the wall clock (hardware in "
+                   "the loop); by default by a modelled compute time, so the same seed gives the same run on any "
+                   "machine")
 
 
 def _params_with_slope(args):
@@ -235,6 +238,15 @@ def _write_run(run, out) -> None:
     save_run_figures(run, out)
 
 
+def _nmpc_options(args) -> dict:
+    """The NMPC's settings from the command line (``--realtime``)."""
+    if not args.realtime:
+        return {}
+    from rollbot_oc.control.nmpc import NMPCSettings
+
+    return {"settings": NMPCSettings(realtime=True)}
+
+
 def _cmd_run(args) -> int:
     from rollbot_oc.problems import run_open_loop, run_problem
     from rollbot_oc.summary import open_loop_text, run_text
@@ -250,7 +262,8 @@ def _cmd_run(args) -> int:
             write_json(out / f"{problem.name}.json", metrics)
         _emit(args, metrics, lambda: open_loop_text(metrics["runs"], problem.name))
     else:
-        run = run_problem(problem, args.controller, seed=args.seed, show_progress=_show_progress(args))
+        run = run_problem(problem, args.controller, seed=args.seed, show_progress=_show_progress(args),
+                          **(_nmpc_options(args) if args.controller == "nmpc" else {}))
         metrics = run.metrics
         if out:
             _write_run(run, out)
@@ -268,7 +281,7 @@ def _cmd_compare(args) -> int:
     if problem.kind == "open_loop":
         raise ConfigError(f"{args.problem}: an open-loop problem has no controller to compare")
     out = output_folder(args.out)
-    runs = compare(problem, seed=args.seed, show_progress=_show_progress(args))
+    runs = compare(problem, seed=args.seed, show_progress=_show_progress(args), nmpc_options=_nmpc_options(args))
     rows = [comparison_row(run) for run in runs]
     if out:
         atomic_write_text(out / f"{problem.name}_comparison.md",

@@ -659,10 +659,13 @@ def run_open_loop(problem: Problem, show_progress: bool | None = None) -> dict:
 
 
 def compare(problem: Problem, seed: int = 0, params: RollbotParams | None = None,
-            duration: float | None = None, show_progress: bool | None = None) -> list[RunResult]:
+            duration: float | None = None, show_progress: bool | None = None,
+            nmpc_options: dict | None = None) -> list[RunResult]:
     """Run the PID baseline and the NMPC on the same problem, plant, noise and seed.
 
-    ``show_progress`` as for ``run_problem``; the table is ``comparison_table``.
+    ``show_progress`` as for ``run_problem``; ``nmpc_options`` go to the NMPC
+    (e.g. ``settings``); the table is ``comparison_table``.
     """
-    return [run_problem(problem, name, seed=seed, params=params, duration=duration, show_progress=show_progress)
+    return [run_problem(problem, name, seed=seed, params=params, duration=duration, show_progress=show_progress,
+                        **((nmpc_options or {}) if name == "nmpc" else {}))
             for name in ("pid", "nmpc")]

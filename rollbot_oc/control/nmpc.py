@@ -166,9 +166,18 @@ class NMPCSettings:
         Circles: durations tried, in order, for the planned entry onto the
         orbit (least effort in that time), s.
     max_solve_time : float or None
-        A solve that takes longer (wall clock) counts as late and is not
-        used; ``None`` means the period ``h`` (real time).  A larger value
-        studies the controller without the real-time constraint.
+        A solve that takes longer counts as late and is not used; ``None``
+        means the period ``h`` (real time).  A larger value studies the
+        controller without the real-time constraint.
+    realtime : bool
+        Judge lateness by the wall clock (hardware in the loop).  Off (the
+        default), a solve is judged by its modelled compute time
+        (``rti_step_time`` per RTI step, ``ipopt_iteration_time`` per IPOPT
+        iteration), so a simulated run does not depend on how busy the
+        machine is; the measured wall-clock times are still reported.
+    rti_step_time, ipopt_iteration_time : float
+        The modelled compute times, s (the benchmark's figures on a 2-core
+        machine, rounded up).
     compiled : bool or None
         RTI: evaluate the interval linearisation as compiled C
         (``rollbot_oc.codegen``); ``None`` uses it when a C compiler exists.
@@ -196,6 +205,9 @@ class NMPCSettings:
     plan_slack: float = 0.1
     entry_times: tuple = (5.0, 7.0, 10.0)
     max_solve_time: float | None = None
+    realtime: bool = False
+    rti_step_time: float = 0.01
+    ipopt_iteration_time: float = 0.01
     compiled: bool | None = None
     plan: OCPSettings = field(default_factory=OCPSettings)
 
@@ -293,6 +305,10 @@ class TrackingSolver:
         """``(Z (10, N+1), U (N,))`` of a solution vector."""
         N = self.settings.N
         return x[:NZ * (N + 1)].reshape(N + 1, NZ).T, x[NZ * (N + 1):]
+
+    def modelled_time(self) -> float:
+        """Modelled compute time of the last solve: its IPOPT iterations times ``ipopt_iteration_time``, s."""
+        return self.nlp.stats().get("iter_count", 0) * self.settings.ipopt_iteration_time
 
 
 @functools.lru_cache(maxsize=None)
@@ -456,6 +472,10 @@ class RTISolver:
         """``(Z (10, N+1), U (N,))`` of a solution vector."""
         N = self.settings.N
         return x[:NZ * (N + 1)].reshape(N + 1, NZ).T, x[NZ * (N + 1):]
+
+    def modelled_time(self) -> float:
+        """Modelled compute time of a solve: ``iterations`` RTI steps of ``rti_step_time``, s."""
+        return self.iterations * self.settings.rti_step_time
 
 
 def _csc(rows, cols, n_rows, n_cols):
@@ -786,7 +806,8 @@ class NMPC:
             on_orbit = (t_now - self.segment_start + s.h * np.arange(s.N + 1)) > self.reference.segments[0][0].T
             circle = (self.mission.centre, self.mission.radius, self.weights.radial * on_orbit)
         x, lam, status, ok, seconds = self.solver.solve(z, Zr, Ur, self.estimator.params(), self.warm, circle)
-        late = seconds > (s.h if s.max_solve_time is None else s.max_solve_time)
+        compute = seconds if s.realtime else self.solver.modelled_time()
+        late = compute > (s.h if s.max_solve_time is None else s.max_solve_time)
         self.log["solve_times"].append(seconds)
         self.log["statuses"].append(status)
         self.log["tilt"].append(self.estimator.tilt.tolist())

@@ -99,3 +99,18 @@ def test_bad_gains(kwargs, message):
 def test_radius_limits_must_fit_the_robot():
     with pytest.raises(ValueError, match="radius limits"):
         QuasiStablePID(Circle([0, 0], 0.3), gains=PIDGains(min_radius=0.05))
+
+
+def test_radius_limits_follow_the_robots_own_map():
+    """A heavier, larger robot (R 0.15 m, M_s 1.2 kg, m 0.5 kg, r0 0.08 m) revolves on 0.15 to 2.2 m: the PID's
+    limits come from its map (the prototype's fixed [0.13, 0.9] m would refuse it)."""
+    from rollbot_oc.quasi_stable import RadiusMap
+
+    heavy = RollbotParams().with_changes(R=0.15, M_s=1.2, m=0.5, r0=0.08)
+    pid = QuasiStablePID(Circle([0, 0], 0.5), heavy)
+    g, radius_map = pid.gains, pid.map
+    assert radius_map.R_min < g.min_radius < g.stop_radius < g.max_radius < radius_map.R_max
+    assert g.min_radius == pytest.approx(1.08 * radius_map.R_min)
+    prototype = PIDGains().radius_limits(RadiusMap())
+    assert (prototype.min_radius, prototype.max_radius, prototype.stop_radius) == pytest.approx((0.13, 0.9, 0.2),
+                                                                                               abs=0.01)

@@ -30,7 +30,7 @@ The radius rate becomes a driving-speed rate through the quasi-stable slope,
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -69,12 +69,16 @@ class PIDGains:
         Pull of the radius towards the target radius, 1/s.
     max_accel : float
         Limit on the driving-speed rate, rad/s^2 (keeps the robot quasi-stable).
-    min_radius, max_radius : float
-        Limits on the commanded revolving radius, m (they bound the driving speed).
+    min_radius, max_radius : float or None
+        Limits on the commanded revolving radius, m (they bound the driving
+        speed).  None follows the robot's own radius map (``radius_limits``):
+        the prototype's 0.13 and 0.9 m are 1.08 times its radius at rest and
+        its radius at 0.83 of the top driving speed.
     integral_limit : float
         Bound on each component of the integrated centre error, m s.
-    stop_radius : float
-        Revolving radius while lining up a stop, m.
+    stop_radius : float or None
+        Revolving radius while lining up a stop, m; None follows the radius map
+        (5/3 of the radius at rest: the prototype's 0.2 m).
     stop_decel : float
         Braking rate of the driving speed at a stop, rad/s^2.
     stop_align : float
@@ -87,22 +91,33 @@ class PIDGains:
     kd: float = 0.0
     kr: float = 0.6
     max_accel: float = 2.0
-    min_radius: float = 0.13
-    max_radius: float = 0.9
+    min_radius: float | None = None
+    max_radius: float | None = None
     integral_limit: float = 2.0
-    stop_radius: float = 0.2
+    stop_radius: float | None = None
     stop_decel: float = 1.0
     stop_align: float = 0.02
 
     def __post_init__(self):
         for name, value in asdict(self).items():
+            if value is None and name in _FROM_MAP:
+                continue
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"PID gain {name} = {value!r} must be a finite number >= 0")
         for name in ("max_accel", "min_radius", "max_radius", "stop_radius", "stop_decel", "stop_align"):
-            if getattr(self, name) <= 0:
+            if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise ValueError(f"PID {name} = {getattr(self, name)!r} must be > 0")
-        if self.min_radius >= self.max_radius:
+        if None not in (self.min_radius, self.max_radius) and self.min_radius >= self.max_radius:
             raise ValueError(f"PID min_radius = {self.min_radius} m must be below max_radius = {self.max_radius} m")
+
+    def radius_limits(self, radius_map: RadiusMap) -> "PIDGains":
+        """These gains with the radius limits the map decides (where they are None) filled in, m."""
+        top = float(radius_map.radius(0.83 * radius_map.omega_max))
+        chosen = {"min_radius": 1.08 * radius_map.R_min, "max_radius": top, "stop_radius": 5.0 / 3.0 * radius_map.R_min}
+        return replace(self, **{k: v for k, v in chosen.items() if getattr(self, k) is None})
+
+
+_FROM_MAP = ("min_radius", "max_radius", "stop_radius")
 
 
 class QuasiStablePID:
@@ -124,10 +139,9 @@ class QuasiStablePID:
     def __init__(self, mission, params: RollbotParams | None = None, gains: PIDGains | None = None,
                  dt: float = 0.01, radius_map: RadiusMap | None = None):
         self.params = params or RollbotParams()
-        self.gains = gains or PIDGains()
         self.dt = dt
         self.map = radius_map or RadiusMap(self.params)
-        g = self.gains
+        self.gains = g = (gains or PIDGains()).radius_limits(self.map)
         if not self.map.R_min < g.min_radius < g.max_radius <= self.map.R_max:
             raise ValueError(f"PID radius limits [{g.min_radius}, {g.max_radius}] m must lie within the robot's "
                              f"quasi-stable range ({self.map.R_min:.3f}, {self.map.R_max:.3f}] m")

@@ -451,7 +451,7 @@ class RunResult:
 
 def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: RollbotParams | None = None,
                 duration: float | None = None, show_progress: bool | None = None,
-                estimator: EstimatorSettings | None = None, **options) -> RunResult:
+                estimator: EstimatorSettings | None = None, kicks=(), **options) -> RunResult:
     """Run a circle or waypoint problem in closed loop and compute its metrics.
 
     Parameters
@@ -468,6 +468,8 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
     show_progress : bool or None
         Progress on stderr (planning, then simulated time and stops reached):
         True shows it, False hides it, None only on a terminal (``progress``).
+    kicks : sequence of simulate.Kick
+        Sudden pushes and spins of the robot during the run.
     estimator : EstimatorSettings, optional
         The filter's settings in the onboard sensing modes (``problem.sensing``);
         the filter believes in the controller's model of the robot.
@@ -500,7 +502,8 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
     with RunProgress(problem.duration, label, stops, show_progress) as progress:
         start = time.perf_counter()
         result = simulate(problem.initial_state(), problem.duration, params=problem.params,
-                          controller=ctrl, dt=problem.dt, sensor=sensor, progress=progress if progress.shown else None)
+                          controller=ctrl, dt=problem.dt, sensor=sensor, progress=progress if progress.shown else None,
+                          kicks=kicks)
         wall = time.perf_counter() - start
         progress.finish(float(result.t[-1]), result.info)
     centres = _centres(result, getattr(ctrl, "map", None))

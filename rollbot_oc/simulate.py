@@ -57,7 +57,7 @@ from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
 from rollbot_oc.sensors import body_signals, rotate_randomly
 
 __all__ = [
-    "Observation", "Command", "Controller", "Sensor", "Event", "SimulationResult",
+    "Observation", "Command", "Controller", "Sensor", "Kick", "Event", "SimulationResult",
     "plant_step", "simulate", "motor_axis", "heading",
 ]
 
@@ -310,6 +310,32 @@ class Sensor:
 
 
 @dataclass(frozen=True)
+class Kick:
+    """A sudden disturbance of the robot at ``time`` (s): a push of the shell centre and a spin of the shell.
+
+    Attributes
+    ----------
+    time : float
+        When, s.
+    position : tuple of float
+        Displacement of the shell centre, m (floor frame).
+    omega : tuple of float
+        Change of the shell's angular velocity, rad/s (floor frame).
+    """
+
+    time: float
+    position: tuple = (0.0, 0.0)
+    omega: tuple = (0.0, 0.0, 0.0)
+
+    def apply(self, x) -> np.ndarray:
+        """The state (11,) after the kick."""
+        x = np.array(x, float)
+        x[POS] += self.position
+        x[OMEGA] += self.omega
+        return x
+
+
+@dataclass(frozen=True)
 class Event:
     """A moment where the no-slip rolling model stops describing the robot.
 
@@ -533,7 +559,7 @@ def _first_events(t: np.ndarray, diag: np.ndarray) -> list[Event]:
 def simulate(x0, duration: float, *, params: RollbotParams | None = None, controller: Controller | None = None,
              speed=None, accel=None, dt: float = 0.01, substeps: int = 2, method: str = "rk4",
              sensor: Sensor | None = None, wrench=None, stop_on_event: bool = True,
-             progress=None) -> SimulationResult:
+             progress=None, kicks=()) -> SimulationResult:
     """Simulate Rollbot's full nonlinear dynamics, open loop or under a controller.
 
     Parameters
@@ -571,6 +597,9 @@ def simulate(x0, duration: float, *, params: RollbotParams | None = None, contro
         Closed loop: ``progress(t, info)`` is called every 0.5 s of simulated
         time with the time reached, s, and the controller's report so far
         (what becomes ``SimulationResult.info``), for progress displays.
+    kicks : sequence of Kick
+        Closed loop: sudden disturbances of the true state (a push, a spin),
+        applied at the start of the period that holds their time.
 
     Returns
     -------
@@ -608,7 +637,7 @@ def simulate(x0, duration: float, *, params: RollbotParams | None = None, contro
         samples = sensor.samples if isinstance(sensor, OnboardSensing) else 0
         x, command, speed_cmd, diag, step_times, info = _closed_loop(
             x0, steps, dt, controller, plant_step(dt, substeps, method, samples), p, w, sensor, stop_on_event,
-            progress)
+            progress, {int(round(kick.time / dt)): kick for kick in kicks})
         estimation = sensor.record() if samples else None
     events = _first_events(times, diag)
     end = diag.shape[1]
@@ -621,7 +650,7 @@ def simulate(x0, duration: float, *, params: RollbotParams | None = None, contro
                             diag[:, :end], events, step_times[:end], info, estimation)
 
 
-def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event, progress=None):
+def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event, progress=None, kicks=None):
     x = np.empty((NX, steps + 1))
     x[:, 0] = x0
     diag = np.empty((NDIAG, steps))
@@ -637,6 +666,8 @@ def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event, p
     end = steps
     report_every = max(1, int(round(0.5 / dt)))  # progress: every 0.5 s of simulated time
     for k in range(steps):
+        if kicks and k in kicks:
+            x[:, k] = kicks[k].apply(x[:, k])
         obs = _observe(sensor, k, dt, x, signals, command[k - 1] if k else 0.0)
         start = time.perf_counter()
         cmd = controller(obs)

@@ -154,3 +154,16 @@ def test_the_same_seed_gives_the_same_json():
     texts = [to_json(without_timings(m)) for m in runs]
     assert texts[0] == texts[1]
     assert runs[0]["solves"] > 0 and all(k in runs[0] for k in TIMING[:-1])
+
+
+def test_recovers_from_a_spin_and_a_push():
+    """A 1 rad/s spin mid-leg and a 0.5 m push at the first stop: the NMPC replans from where the robot is and still
+    reaches both stops at rest (without the replanning it never reached the first one in 120 s)."""
+    from rollbot_oc.simulate import Kick
+
+    base = load_problem(PROBLEMS / "n_shape.toml")
+    problem = replace(base, mission=Waypoints(tuple(base.mission.points[:2])), duration=60.0)
+    kicks = [Kick(3.0, omega=(0.0, 0.0, 1.0)), Kick(10.0, position=(0.5, 0.0))]
+    m = run_problem(problem, "nmpc", kicks=kicks).metrics
+    assert m["completed"] and max(m["stop_errors"]) <= 0.07 and m["stop_replans"] >= 1
+    check_plant_limits(m)

@@ -154,6 +154,10 @@ class NMPCSettings:
         How long after a leg's plan ends a robot at rest away from its stop
         waits before it gets a new leg to the same stop, s (it never moves on
         from a stop it has not reached).
+    replan_distance, replan_interval : float
+        A robot pushed more than ``replan_distance`` (m) off its plan gets a
+        new leg to its stop from where it is, at most once per
+        ``replan_interval`` (s).
     hold_radius : float
         At the end of a leg within this distance of its stop (m), the NMPC holds
         the robot where it arrived (damping its motion) instead of chasing the
@@ -202,6 +206,8 @@ class NMPCSettings:
     rest_speed: float = 0.02
     hold_time: float = 3.0
     hold_radius: float = 0.05
+    replan_distance: float = 0.15
+    replan_interval: float = 1.0
     plan_slack: float = 0.1
     entry_times: tuple = (5.0, 7.0, 10.0)
     max_solve_time: float | None = None
@@ -784,8 +790,13 @@ class NMPC:
             if self.segment >= len(self.reference.segments):
                 self._done = True
             return
-        if local >= plan.T + self.settings.hold_time and self._monitor is not None and self._monitor.settled_away:
+        anchor = self._anchor if self._anchor is not None else plan.state(local)[REDUCED.position]
+        off_course = np.linalg.norm(z[REDUCED.position] - anchor) > self.settings.replan_distance
+        settled_away = local >= plan.T + self.settings.hold_time and self._monitor is not None \
+            and self._monitor.settled_away
+        if settled_away or (off_course and local >= self.settings.replan_interval):
             # never move on from here: plan a new leg to the same stop from where the robot is
+            self._anchor = None
             try:
                 self.reference.segments[self.segment] = (self._leg(z, info["stop"]), info)
             except SolveFailed as exc:  # keep holding on the old plan; try again after hold_time

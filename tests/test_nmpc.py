@@ -41,7 +41,7 @@ def test_n_shape_faster_than_the_pid_with_real_stops():
     assert bound <= nmpc["completion_time"] <= 3 * bound
 
 
-@pytest.mark.parametrize("name", ["circle_R020", "circle_R065"])  # the extremes; all four: benchmarks/bench_nmpc.py
+@pytest.mark.parametrize("name", ["circle_R020", "circle_R065"])  # the extremes (the README measures all four)
 def test_circles_half_the_pid_deviation(name):
     problem = load_problem(PROBLEMS / f"{name}.toml").with_duration(165.0)  # 45 s measured after settling
     nmpc = run_problem(problem, "nmpc").metrics

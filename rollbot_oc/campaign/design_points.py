@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 
 from rollbot_oc.campaign.case import Outcome, register
-from rollbot_oc.campaign.spec import grid_cases, grid_values
+from rollbot_oc.campaign.spec import grid_cases
 from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.problems import _check_damping, _check_keys, _number, _table

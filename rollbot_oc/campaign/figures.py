@@ -10,7 +10,8 @@
   marked;
 * ``plot_design_map``: each metric over a two-dimensional grid.
 
-Every function returns the path it wrote.
+Every function writes its figure to ``path`` and returns the path, or,
+given ``path=None``, returns the figure (for a notebook).
 """
 
 from __future__ import annotations
@@ -25,6 +26,15 @@ __all__ = ["plot_success_rates", "plot_closed_loop_histograms", "plot_pareto", "
 LABELS = {"radius_range": "radius range R0max - R0min (m)", "radius_ratio": "R0max / R0min",
           "tau_max": "worst recovery time (s)", "n_shape_bound": "minimum-time N-shape bound (s)"}
 BINS = 6
+
+
+def _finish(fig, path):
+    """Write the figure to ``path`` and close it (returns the path), or, without a path, return the figure."""
+    if path is None:
+        return fig
+    save_figure(fig, path)
+    plt.close(fig)
+    return path
 
 
 def _legend(ax) -> None:
@@ -82,9 +92,7 @@ def plot_success_rates(table, inputs, group, path):
         _legend(axes.flat[0])
     fig.suptitle(f"success rate against each varied input ({len(table)} cases)")
     fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
-    return path
+    return _finish(fig, path)
 
 
 def plot_closed_loop_histograms(stop_errors: dict, times: dict, tolerance: float, ratio: bool, path):
@@ -119,9 +127,7 @@ def plot_closed_loop_histograms(stop_errors: dict, times: dict, tolerance: float
         _legend(ax)
     right.set_title("successful runs", fontsize=9)
     fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
-    return path
+    return _finish(fig, path)
 
 
 def plot_pareto(table, front, path):
@@ -146,9 +152,7 @@ def plot_pareto(table, front, path):
     ax.grid(alpha=0.3)
     _legend(ax)
     fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
-    return path
+    return _finish(fig, path)
 
 
 def plot_design_map(table, axes, metrics, path):
@@ -170,6 +174,4 @@ def plot_design_map(table, axes, metrics, path):
         ax.set_xlabel(x_name)
         ax.set_ylabel(y_name)
     fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
-    return path
+    return _finish(fig, path)

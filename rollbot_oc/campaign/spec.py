@@ -33,6 +33,7 @@ from rollbot_oc.params import read_toml
 from rollbot_oc.problems import _check_keys, _check_name, _number, _table
 
 __all__ = ["Campaign", "load_campaign", "campaign_from_dict", "load_campaign_spec", "bundled_campaigns",
+           "bundled_campaign_table",
            "grid_values", "grid_cases", "MAX_SEED", "MAX_CASES"]
 
 MAX_SEED = 2**32 - 1
@@ -151,6 +152,19 @@ def bundled_campaigns() -> list[str]:
         if folder.is_dir() else []
 
 
+def bundled_campaign_table(name: str) -> dict:
+    """The parsed TOML of the bundled campaign spec ``name`` (to run it with changes).
+
+    Raises
+    ------
+    ConfigError
+        If there is no bundled spec of that name (the valid names are listed).
+    """
+    if name not in bundled_campaigns():
+        raise ConfigError(f"no bundled campaign {name!r}; bundled are {', '.join(bundled_campaigns()) or 'none'}")
+    return tomllib.loads(_bundled_folder().joinpath(f"{name}.toml").read_text(encoding="utf-8"))
+
+
 def load_campaign_spec(text: str) -> Campaign:
     """The campaign a ``SPEC`` argument names: a spec file, or else a bundled spec's name.
 
@@ -165,8 +179,7 @@ def load_campaign_spec(text: str) -> Campaign:
     if path is not None:
         return load_campaign(path)
     if name is not None:
-        content = _bundled_folder().joinpath(f"{name}.toml").read_text(encoding="utf-8")
-        return campaign_from_dict(tomllib.loads(content), f"bundled campaign {name}")
+        return campaign_from_dict(bundled_campaign_table(name), f"bundled campaign {name}")
     raise ConfigError(f"campaign spec {text!r}: no such file, and no bundled spec of that name; bundled are "
                       f"{', '.join(bundled_campaigns()) or 'none'}")
 

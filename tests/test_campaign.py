@@ -42,6 +42,17 @@ def test_two_worker_processes_give_the_same_table_as_one(tmp_path):
     assert left == [], left
 
 
+def test_an_existing_scheduler_from_the_environment_gives_the_same_table(tmp_path, monkeypatch):
+    distributed = pytest.importorskip("distributed")
+    campaign = campaign_from_dict(DESIGN, "tiny.toml")
+    alone = run_campaign(campaign, tmp_path / "one", workers=1, figures=False)
+    with distributed.LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster:
+        monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", cluster.scheduler_address)
+        remote = run_campaign(campaign, tmp_path / "remote", figures=False)
+    assert remote.summary["where"] == f"Dask scheduler {cluster.scheduler_address}"
+    pd.testing.assert_frame_equal(comparable(alone.table), comparable(remote.table))
+
+
 def test_a_failing_case_is_a_row_with_its_error(tmp_path):
     result = run_campaign(campaign_from_dict(DESIGN, "tiny.toml"), tmp_path, workers=1)
     table = result.table.set_index("case")
@@ -150,3 +161,29 @@ def test_bad_workers_and_scheduler_are_refused_before_anything_runs(tmp_path, ca
         assert main(["campaign", str(spec), "--out", str(tmp_path / "out"), *argv]) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_design_points_with_the_n_shape_bound_and_the_pareto_front(tmp_path, monkeypatch):
+    """The bound's optimal-control call replaced by a stand-in (the real one takes seconds per design): heavier
+    pendulums plan "faster" here, and one design's planning fails, which fails its row but keeps its measures."""
+    import rollbot_oc.bounds as bounds
+    from rollbot_oc.errors import NotConverged
+
+    def legs(params, start, stops):
+        if params.m > 0.4:
+            raise NotConverged("rest-to-rest plan to [1.2, 0.0]", "Maximum_Iterations_Exceeded")
+        return [1.0 / params.m] * len(stops)
+
+    monkeypatch.setattr(bounds, "_plan_legs", legs)
+    spec = {"name": "bounded", "kind": "design",
+            "design": {"speeds": 5, "n_shape_bound": True, "grid": {"m": [0.2, 0.3, 0.45]}}}
+    result = run_campaign(campaign_from_dict(spec, "bounded.toml"), tmp_path, workers=1)
+    table = result.table
+    assert table["n_shape_bound"].tolist()[:3] == pytest.approx([4 / 0.306, 4 / 0.2, 4 / 0.3])
+    assert table["n_shape_legs"].tolist()[1] == pytest.approx([5.0] * 4)
+    last = table.iloc[3]
+    assert last["status"] == "failed" and "Maximum_Iterations_Exceeded" in last["error"]
+    assert last["tau_max"] > 0 and math.isnan(last["n_shape_bound"])
+    front = result.summary["design"]["pareto_front"]  # lighter: wider range and shorter recovery, slower here
+    assert {row["m"] for row in front} == {0.2, 0.3, 0.306}
+    assert result.summary["design"]["trends"]["tau_max"]["m"].startswith("up 2, down 0")

@@ -24,9 +24,11 @@ stage 0 below).  The constraints are cheap and checked first, so only
 feasible designs pay for an OCP.
 
 0. the prototype and its six neighbours at +-1 deg, +-0.01 kg, +-0.002 m;
-1. a coarse grid over the bounds (3 x 3 x 3), feasible points only;
-2. compass search from the best: the six neighbours at the current step,
-   move to the best improvement, else halve the step (twice at most);
+1. a coarse grid (3 x 2 x 2: ``phi`` 35, 45, 55 deg, ``m`` 0.2, 0.3 kg, ``r0``
+   0.075, 0.09 m; heavier pendulums lose the radius range), feasible points only;
+2. compass search from the best: the six neighbours at the current step
+   (5 deg, 0.05 kg, 0.01 m), move to the best improvement, else halve the
+   step (once: the search ends at 2.5 deg, 0.025 kg, 0.005 m);
 3. the best design's six neighbours, as for the prototype: the median of a
    neighbourhood says whether a gain is the design's or a lucky plan.
 
@@ -155,13 +157,13 @@ def main():
     around_prototype = neighbourhood(evaluator, prototype, "0 prototype neighbourhood")
     print("stage 0:", around_prototype, flush=True)
 
-    grid = [point(a, b, c) for a in (35.0, 45.0, 55.0) for b in (0.2, 0.3, 0.4) for c in (0.075, 0.085, 0.095)]
+    grid = [point(a, b, c) for a in (35.0, 45.0, 55.0) for b in (0.2, 0.3) for c in (0.075, 0.09)]
     rows = evaluator.bounds(evaluator.feasible(grid), "1 coarse grid")
     best = min(rows + [evaluator.rows[evaluator.key(prototype)]], key=value)
     print(f"stage 1: {len(rows)} feasible of {len(grid)}; best {best}", flush=True)
 
     steps, halvings = dict(STEP), 0
-    while halvings <= 2:
+    while halvings <= 1:
         candidates = evaluator.feasible(neighbours(best, steps))
         rows = evaluator.bounds(candidates, f"2 compass step {steps['phi_deg']:g} deg")
         better = [r for r in rows if value(r) < value(best) - 1e-9]
@@ -180,8 +182,8 @@ def main():
         "problem": "minimise the minimum-time N-shape bound (bundled n_shape, level floor) subject to tau_max <= "
                    f"{TAU_LIMIT} s at every speed ({SPEEDS} speeds) and a radius range >= the prototype's",
         "bounds": {k: list(v) for k, v in BOUNDS.items()},
-        "method": "derivative-free over campaigns: coarse 3x3x3 grid of feasible designs, then compass search "
-                  "with step halving; neighbourhoods of +-1 deg, +-0.01 kg, +-0.002 m around prototype and best",
+        "method": "derivative-free over campaigns: coarse 3x2x2 grid of feasible designs, then compass search "
+                  "with one step halving; neighbourhoods of +-1 deg, +-0.01 kg, +-0.002 m around prototype and best",
         "prototype": {**proto_row, "neighbourhood": around_prototype},
         "best": {**best, "neighbourhood": around_best},
         "gain": {"bound": value(proto_row) - value(best), "ratio": value(best) / value(proto_row),

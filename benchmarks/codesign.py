@@ -120,10 +120,11 @@ def value(row) -> float:
 
 
 def neighbours(p: dict, steps: dict) -> list[dict]:
+    """The six designs one step away from ``p`` along each parameter."""
     out = []
     for k in BOUNDS:
         for sign in (-1, 1):
-            q = dict(p)
+            q = {key: p[key] for key in BOUNDS}
             q[k] = p[k] + sign * steps[k]
             out.append(point(**q))
     return out

@@ -165,18 +165,18 @@ class ClosedLoopKind:
         return Outcome(metrics, drawn, "; ".join(causes) or None)
 
     def summarise(self, table) -> dict:
-        """Per controller: success rate, stop errors (m, every stop reached), completion times (s, successful
-        runs) and their ratio to the course's bound; for ``bound``, the bounds (s)."""
+        """Per controller (``controllers``): success rate, stop errors (m, every stop reached), completion times
+        (s, successful runs) and their ratio to the course's bound; ``bound``: the bounds planned (s)."""
         from rollbot_oc.campaign.summary import quantiles
 
         ratios = time_ratios(table)
-        out = {}
+        out, bound = {}, {}
         for controller in self.controllers:
             rows = table[table["controller"] == controller]
             ok = rows["status"] == "succeeded"
             if controller == BOUND:
-                out[controller] = {"courses": len(rows), "planned": int(ok.sum()),
-                                   **quantiles(rows["completion_time"][ok], "bound")}
+                bound = {"courses": len(rows), "planned": int(ok.sum()),
+                         **quantiles(rows["completion_time"][ok], "bound")}
                 continue
             errors = stop_errors(rows)
             out[controller] = {"runs": len(rows), "succeeded": int(ok.sum()),
@@ -184,7 +184,7 @@ class ClosedLoopKind:
                                **quantiles(errors, "stop_error"),
                                **quantiles(rows["completion_time"][ok], "completion_time"),
                                **quantiles(ratios[rows.index][ok], "time_ratio")}
-        return {"controllers": out}
+        return {"controllers": out, **({"bound": bound} if bound else {})}
 
     def figures(self, table, folder) -> list:
         """Success rate against each varied input, histograms of stop errors and of time ratios."""

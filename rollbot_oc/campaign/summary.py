@@ -8,7 +8,8 @@ cluster start included), ``startup_time`` (s, of which starting the cluster),
 ``cases_per_second`` (computed cases over ``wall_time``; null if none ran),
 ``case_time_median``/``_p95``/``_total`` (s per case, measured in the
 workers), ``workers``, ``where``, ``code`` (fingerprints of the code that
-computed the rows), ``failures`` (each: case, its group, status and cause)
+computed the rows), ``failures`` (each: case, the inputs that name it,
+status and cause)
 and the kind's own summary under the kind's name.  ``summary_markdown``
 renders it.
 """
@@ -38,8 +39,8 @@ def summarise(campaign, table, *, computed: int, resumed: int, wall_time: float,
     status = table["status"]
     cases = len(table)
     succeeded = int((status == "succeeded").sum())
-    group = [kind.group] if kind.group else []
-    failures = [{"case": int(row["case"]), **{g: row[g] for g in group}, "status": row["status"],
+    given = list(dict.fromkeys(key for inputs in kind.case_inputs()[:1] for key in inputs))  # what names a case
+    failures = [{"case": int(row["case"]), **{key: row[key] for key in given}, "status": row["status"],
                  "error": row["error"]} for _, row in table[status != "succeeded"].iterrows()]
     times = table["wall_time"].dropna().to_numpy(float)
     return {

@@ -46,7 +46,7 @@ def test_an_existing_scheduler_from_the_environment_gives_the_same_table(tmp_pat
     distributed = pytest.importorskip("distributed")
     campaign = campaign_from_dict(DESIGN, "tiny.toml")
     alone = run_campaign(campaign, tmp_path / "one", workers=1, figures=False)
-    with distributed.LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster:
+    with distributed.LocalCluster(n_workers=1, processes=False, dashboard_address="127.0.0.1:0") as cluster:
         monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", cluster.scheduler_address)
         remote = run_campaign(campaign, tmp_path / "remote", figures=False)
     assert remote.summary["where"] == f"Dask scheduler {cluster.scheduler_address}"

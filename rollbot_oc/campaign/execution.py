@@ -187,6 +187,7 @@ def executor(kind, workers: int | None = None, scheduler: str | None = None):
         with client:
             yield _Dask(client, kind, f"Dask scheduler {scheduler}")
         return
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+    # the scheduler always serves HTTP (health, metrics; the dashboard with bokeh): on a free port of this host
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
                       silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         yield _Dask(client, kind, f"local Dask cluster of {workers} worker processes")

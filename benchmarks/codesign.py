@@ -24,8 +24,9 @@ stage 0 below).  The constraints are cheap and checked first, so only
 feasible designs pay for an OCP.
 
 0. the prototype and its six neighbours at +-1 deg, +-0.01 kg, +-0.002 m;
-1. a coarse grid (3 x 2 x 2: ``phi`` 35, 45, 55 deg, ``m`` 0.2, 0.3 kg, ``r0``
-   0.075, 0.09 m; heavier pendulums lose the radius range), feasible points only;
+1. a coarse grid (4 x 4 x 2: ``phi`` 35, 45, 55, 60 deg, ``m`` 0.2, 0.3, 0.4,
+   0.45 kg, ``r0`` 0.075, 0.09 m), feasible points only (a heavy pendulum
+   keeps the prototype's radius range only with a large ``phi``);
 2. compass search from the best: the six neighbours at the current step
    (5 deg, 0.05 kg, 0.01 m), move to the best improvement, else halve the
    step (once: the search ends at 2.5 deg, 0.025 kg, 0.005 m);
@@ -158,7 +159,7 @@ def main():
     around_prototype = neighbourhood(evaluator, prototype, "0 prototype neighbourhood")
     print("stage 0:", around_prototype, flush=True)
 
-    grid = [point(a, b, c) for a in (35.0, 45.0, 55.0) for b in (0.2, 0.3) for c in (0.075, 0.09)]
+    grid = [point(a, b, c) for a in (35.0, 45.0, 55.0, 60.0) for b in (0.2, 0.3, 0.4, 0.45) for c in (0.075, 0.09)]
     rows = evaluator.bounds(evaluator.feasible(grid), "1 coarse grid")
     best = min(rows + [evaluator.rows[evaluator.key(prototype)]], key=value)
     print(f"stage 1: {len(rows)} feasible of {len(grid)}; best {best}", flush=True)
@@ -183,7 +184,7 @@ def main():
         "problem": "minimise the minimum-time N-shape bound (bundled n_shape, level floor) subject to tau_max <= "
                    f"{TAU_LIMIT} s at every speed ({SPEEDS} speeds) and a radius range >= the prototype's",
         "bounds": {k: list(v) for k, v in BOUNDS.items()},
-        "method": "derivative-free over campaigns: coarse 3x2x2 grid of feasible designs, then compass search "
+        "method": "derivative-free over campaigns: coarse 4x4x2 grid of feasible designs, then compass search "
                   "with one step halving; neighbourhoods of +-1 deg, +-0.01 kg, +-0.002 m around prototype and best",
         "prototype": {**proto_row, "neighbourhood": around_prototype},
         "best": {**best, "neighbourhood": around_best},

@@ -18,6 +18,7 @@ Run: .venv/bin/python benchmarks/bench_campaign.py [--design N] [--courses N] [-
 """
 
 import argparse
+import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -60,14 +61,14 @@ def main():
     for name, spec in workloads(args.design, args.courses).items():
         for workers in (1, 2):
             s = measure(spec, workers)
-            per_case[name] = s["case_time_median"]
+            per_case.setdefault(name, s["case_time_median"])  # one worker: the least contended measure
             line = (f"  {name:<14} workers {workers}  cases {s['cases']:4d}  wall {s['wall_time']:7.1f} s  "
                     f"start-up {s['startup_time']:5.1f} s  {s['cases_per_second']:8.2f} cases/s  "
                     f"({s['steady_rate']:8.2f} after start-up)  per case median {s['case_time_median']:.3f} s  "
-                    f"succeeded {s['succeeded']}/{s['cases']}")
+                    f"succeeded {s['succeeded']}/{s['cases']}  load average {os.getloadavg()[0]:.1f}")
             print(line, flush=True)
             lines.append(line)
-    lines += ["", "Planning 10,000 PID courses on 50 nodes of 2 cores (100 workers), from the median per case above:",
+    lines += ["", "Planning 10,000 PID courses on 50 nodes of 2 cores (100 workers), from the one-worker median per case:",
               f"  {10_000 * per_case['PID courses'] / 100 / 60:.1f} min of computing, plus the cluster's start"]
     text = "\n".join(lines) + "\n"
     if args.result:

@@ -15,12 +15,12 @@ torque limit follows the paper's ``r0 m g``, everything else is the
 prototype's.
 
 Method: derivative-free, over campaigns (``DesignKind`` cases with the bound
-switched on), because the bound is rugged: +-1 % in ``m`` at the prototype
-moves it by several per cent in both directions (each leg's plan is a local
-optimum of IPOPT, and a leg's end heading changes the next leg), so finite
-differences, and the OCP's parametric sensitivities that they would
-approximate, describe one local optimum, not the design's trend (measured:
-stage 0 below).  The constraints are cheap and checked first, so only
+switched on), because the bound is rugged: small changes of a parameter move
+it both ways and by more than the trends between designs (each leg's plan is
+a local optimum of IPOPT, and a leg's end heading changes the next leg), so
+finite differences, and the OCP's parametric sensitivities that they would
+approximate, describe one local optimum, not the design's trend (stage 0
+below measures this; the figures are in the README).  The constraints are cheap and checked first, so only
 feasible designs pay for an OCP.
 
 0. the prototype and its six neighbours at +-1 deg, +-0.01 kg, +-0.002 m;

@@ -48,8 +48,8 @@ __all__ = ["CourseRanges", "Course", "random_course", "course_duration", "DURATI
 
 PROTOTYPE = RollbotParams()
 
-# Duration of a course: the PID baseline, the slowest controller, covers the paper's N-shape (4.5 m, 4 stops)
-# at about 2.4 cm/s; these allow it about twice that time, with time to settle at every stop.
+# Duration of a course: about twice what the PID baseline, the slowest controller, takes on the paper's N-shape
+# per metre (README, "Control"), with time to settle at every stop.
 DURATION_BASE = 60.0  # s
 DURATION_PER_METRE = 90.0  # s per m of the path through the stops
 DURATION_PER_STOP = 15.0  # s per stop

@@ -423,7 +423,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("campaign", help="run a campaign of independent cases (random courses, design points, a function) "
                 "on Dask; resumes an interrupted one")
     p.add_argument("spec", metavar="SPEC", help="campaign spec (TOML, schema in the README) or a bundled spec's name "
-                   "(robustness, design)")
+                   "(robustness, design, design_r0_k0)")
     p.add_argument("--workers", type=int, metavar="N", help="local worker processes, in [1, 1024]; 1 runs in this "
                    "process (default: this machine's cores)")
     p.add_argument("--scheduler", metavar="ADDR", help="an existing Dask scheduler, tcp://HOST:8786 (default: "

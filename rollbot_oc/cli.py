@@ -350,6 +350,18 @@ def _cmd_plot(args) -> int:
     return EXIT_OK
 
 
+def _cmd_campaign(args) -> int:
+    from rollbot_oc.campaign import load_campaign_spec, run_campaign
+    from rollbot_oc.campaign.summary import summary_markdown
+
+    campaign = load_campaign_spec(args.spec)
+    result = run_campaign(campaign, args.out or f"out/{campaign.name}", workers=args.workers, scheduler=args.scheduler)
+    summary = result.summary
+    print(to_json(summary) if args.json else summary_markdown(summary), end="\n" if args.json else "")
+    return _failed(f"{summary['failed']} of {summary['cases']} cases did not succeed (causes in "
+                   f"{result.folder / 'summary.md'})") if summary["failed"] else EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``rollbot-oc`` (subcommands and their options)."""
     parser = _Parser(prog=PROG, description="Model, analyse and control Rollbot, the spherical robot "
@@ -439,6 +451,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR", default="out", help="report folder (default out/)")
     p.add_argument("--quick", action="store_true", help="fewer points and frames (about a minute less)")
     p.set_defaults(run=_cmd_demo)
+
+    p = command("campaign", help="run a campaign of independent cases (random courses, design points, a function) "
+                "on Dask; resumes an interrupted one")
+    p.add_argument("spec", metavar="SPEC", help="campaign spec (TOML, schema in the README) or a bundled spec's name "
+                   "(robustness, design, design_r0_k0)")
+    p.add_argument("--workers", type=int, metavar="N", help="local worker processes, in [1, 1024]; 1 runs in this "
+                   "process (default: this machine's cores)")
+    p.add_argument("--scheduler", metavar="ADDR", help="an existing Dask scheduler, tcp://HOST:8786 (default: "
+                   "$DASK_SCHEDULER_ADDRESS, else a local cluster)")
+    p.add_argument("--out", metavar="DIR", help="results.parquet, summary.json/.md, figures and the resumable part "
+                   "files (default out/NAME)")
+    p.add_argument("--json", action="store_true", help="print summary.json (cases, succeeded, failed, success_rate, "
+                   "wall_time, cases_per_second, ...)")
+    p.set_defaults(run=_cmd_campaign)
 
     p = command("plot", help="figures (and an animation) of a saved run (.npz from run/compare --out)")
     p.add_argument("run_file", metavar="RUN.npz", help="a saved run")

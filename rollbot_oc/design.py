@@ -5,7 +5,10 @@ make Rollbot recover faster from transients, while a smaller ``phi`` and
 ``m`` let the revolving radius change more with the driving speed; the
 prototype balances the two.  ``design_point`` measures both for one
 parameter set from the quasi-stable states and their linearised stability
-over ``[0, max_speed]``; ``sweep`` varies one parameter.
+over ``[0, max_speed]``; ``sweep`` varies one parameter.  Sweeps in two or
+more dimensions are campaigns (``rollbot_oc.campaign``, kind ``design``);
+``pareto_mask`` picks the designs no other beats in every objective and
+``grid_trend`` counts how a metric moves along one axis of a grid.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from rollbot_oc.progress import progress_bar
 from rollbot_oc.quasi_stable import quasi_stable_curve
 from rollbot_oc.stability import stability_curve
 
-__all__ = ["DesignPoint", "design_point", "sweep", "robot_record", "SWEEPABLE"]
+__all__ = ["DesignPoint", "design_point", "sweep", "robot_record", "pareto_mask", "grid_trend", "SWEEPABLE"]
 
 SWEEPABLE = ("phi", "m", "r0", "k0", "R", "I", "M_s")
 
@@ -137,3 +140,60 @@ def robot_record(params: RollbotParams, given=(), robot: str = "prototype") -> d
         for record in derived[2:]:
             record["note"] = note
     return {"robot": robot, "params": params.described(given), "derived": derived}
+
+
+def pareto_mask(values, maximise) -> np.ndarray:
+    """Which rows of ``values`` are Pareto-optimal: no other row is at least as good in every objective and
+    better in one.
+
+    Parameters
+    ----------
+    values : array_like (n, k)
+        The objectives of ``n`` designs (rows with a NaN are never optimal).
+    maximise : sequence of bool (k,)
+        For each objective, True if more is better.
+
+    Returns
+    -------
+    numpy.ndarray of bool (n,)
+    """
+    v = np.array(values, float, ndmin=2)
+    v = np.where(np.asarray(maximise, bool), -v, v)  # every objective minimised
+    finite = np.isfinite(v).all(axis=1)
+    better_or_equal = (v[:, None, :] <= v[None, :, :]).all(axis=2)  # [i, j]: i at least as good as j everywhere
+    strictly = (v[:, None, :] < v[None, :, :]).any(axis=2)
+    dominated = (better_or_equal & strictly & finite[:, None]).any(axis=0)
+    return finite & ~dominated
+
+
+def grid_trend(table, axes, axis: str, metric: str) -> dict:
+    """How ``metric`` moves as ``axis`` grows along every line of a grid (the other axes held).
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        One row per grid point, with the grid's axes and the metric as columns
+        (a design campaign's table; rows with a missing metric are left out).
+    axes : sequence of str
+        The grid's axes (columns).
+    axis, metric : str
+        The axis along which to step, and the metric (column names).
+
+    Returns
+    -------
+    dict
+        ``up``, ``down``, ``flat``: how many steps between neighbouring grid
+        values of ``axis`` (same other axes) raise, lower or keep ``metric``
+        (to 1e-9 relative); ``steps``: their total.
+    """
+    others = [c for c in axes if c != axis]
+    data = table.dropna(subset=[metric])
+    counts = {"up": 0, "down": 0, "flat": 0}
+    for _, line in (data.groupby(others, sort=True) if others else [(None, data)]):
+        y = line.sort_values(axis)[metric].to_numpy(float)
+        step = np.diff(y)
+        tolerance = 1e-9 * np.maximum(np.abs(y[1:]), np.abs(y[:-1]))
+        counts["up"] += int((step > tolerance).sum())
+        counts["down"] += int((step < -tolerance).sum())
+        counts["flat"] += int((np.abs(step) <= tolerance).sum())
+    return {**counts, "steps": sum(counts.values())}

@@ -17,7 +17,7 @@ from pathlib import Path
 from rollbot_oc.errors import ConfigError
 
 __all__ = ["bundled_names", "bundled_text", "bundled_table", "list_bundled", "load_bundled", "load_scenario",
-           "NAME_PATTERN"]
+           "file_or_bundled", "NAME_PATTERN"]
 
 PACKAGE = "rollbot_oc.problems_data"
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{0,63}")  # a scenario name, also a file stem
@@ -79,6 +79,36 @@ def load_bundled(name: str, base=None):
     return problem_from_dict(bundled_table(name), f"bundled scenario {name}", base)
 
 
+def file_or_bundled(text: str, what: str, names, folders: tuple) -> tuple[Path | None, str | None]:
+    """What a command-line argument names: an existing file, or else one of the bundled ``names``.
+
+    Parameters
+    ----------
+    text : str
+        The argument.
+    what : str
+        What it is, for messages (``"problem"``).
+    names : collection of str
+        The bundled names.
+    folders : tuple of str
+        Folders that may precede a bundled name (``"problems"``), beside none.
+
+    Returns
+    -------
+    (Path, None) for an existing file, (None, name) for a bundled name
+    (with or without ``.toml``), (None, None) for neither.
+    """
+    from rollbot_oc.outputs import user_path
+
+    path = user_path(text, what)
+    if path.exists():
+        return path, None
+    stem = path.name[:-5] if path.name.endswith(".toml") else path.name
+    if path.parent in (Path("."), *map(Path, folders)) and stem in names:
+        return None, stem
+    return None, None
+
+
 def load_scenario(text: str, base=None):
     """The problem a ``PROBLEM`` argument names: a scenario file, or else a bundled scenario.
 
@@ -102,14 +132,12 @@ def load_scenario(text: str, base=None):
     ConfigError
         If it is neither (the bundled scenarios are listed), or the file is bad.
     """
-    from rollbot_oc.outputs import user_path
     from rollbot_oc.problems import load_problem
 
-    path = user_path(text, "problem")
-    if path.exists():
+    path, name = file_or_bundled(text, "problem", bundled_names(), ("problems",))
+    if path is not None:
         return load_problem(path, base)
-    stem = path.name[:-5] if path.name.endswith(".toml") else path.name
-    if path.parent in (Path("."), Path("problems")) and stem in bundled_names():
-        return load_bundled(stem, base)
+    if name is not None:
+        return load_bundled(name, base)
     raise ConfigError(f"problem {text!r}: no such file, and no bundled scenario of that name; bundled are "
                       f"{', '.join(bundled_names())} (see rollbot-oc problems)")

@@ -47,6 +47,8 @@ def test_wheel_ships_the_scenarios_and_runs_from_another_folder(tmp_path):
     assert installed.returncode == 0, installed.stderr
     assert sorted(p.name for p in (site / "rollbot_oc" / "problems_data").glob("*.toml")) == sorted(
         p.name for p in (ROOT / "problems").glob("*.toml"))
+    assert sorted(p.name for p in (site / "rollbot_oc" / "problems_data" / "campaigns").glob("*.toml")) == sorted(
+        p.name for p in (ROOT / "problems" / "campaigns").glob("*.toml"))
 
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
@@ -70,3 +72,7 @@ def test_wheel_ships_the_scenarios_and_runs_from_another_folder(tmp_path):
     metrics = json.loads(run.stdout)
     assert metrics["problem"] == "open_loop" and metrics["completed"] and metrics["max_R0_error"] < 1e-3
     assert (elsewhere / "report" / "open_loop.json").is_file()
+
+    campaign = rollbot_oc("campaign", "design", "--workers", "1", "--json", "--out", "design")  # a bundled spec
+    assert campaign.returncode == 0, campaign.stderr
+    assert json.loads(campaign.stdout)["cases"] == 43 and (elsewhere / "design" / "results.parquet").is_file()

@@ -1,0 +1,102 @@
+"""The minimum-time bound of a waypoint course: the fastest chain of rest-to-rest legs the motor allows.
+
+This module is the one place where campaigns, course benchmarks and the
+hardware co-design call the optimal-control layer, so that switching the
+layer (``rollbot_oc.control.ocp`` today) is a change to ``_plan_legs`` only.
+
+The bound of a course is the sum of the minimum times of its legs, each a
+rest-to-rest plan over the full dynamics with the motor's torque, speed and
+acceleration limits and the no-jump and no-slide margins of the planner
+(``OCPSettings``), each leg starting where the previous plan ended (heading
+included).  It is a bound in the sense the issue tracker uses it: what the
+planner finds, a local optimum, not a proven global minimum.
+
+The N-shape bound of a design (``n_shape_bound``) is this bound on the
+bundled ``n_shape`` scenario's start and stops, on a level floor: a property
+of the robot, not of one lab's floor.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from rollbot_oc.errors import NumericalFailure
+from rollbot_oc.params import RollbotParams
+
+__all__ = ["TimeBound", "minimum_time_bound", "n_shape_bound"]
+
+
+@dataclass(frozen=True)
+class TimeBound:
+    """The minimum-time bound of a course.
+
+    Attributes
+    ----------
+    total : float
+        Sum of the legs' minimum times, s.
+    legs : tuple of float
+        Minimum time of each leg, s.
+    wall_time : float
+        Computation time, s.
+    """
+
+    total: float
+    legs: tuple
+    wall_time: float
+
+
+def _plan_legs(params: RollbotParams, start_state: np.ndarray, stops) -> list[float]:
+    """Minimum times (s) of the rest-to-rest legs through ``stops`` (the optimal-control layer's call).
+
+    Raises
+    ------
+    NumericalFailure
+        If a leg cannot be planned (the leg and the solver's status are named).
+    """
+    from rollbot_oc.control.ocp import SolveFailed, plan_waypoints
+
+    try:
+        plans = plan_waypoints(start_state, [np.asarray(s, float) for s in stops], params)
+    except SolveFailed as exc:
+        raise NumericalFailure(str(exc), exc.status) from None
+    return [float(plan.T) for plan in plans]
+
+
+def minimum_time_bound(params: RollbotParams, start_state: np.ndarray, stops) -> TimeBound:
+    """The minimum-time bound of a waypoint course (see the module doc).
+
+    Parameters
+    ----------
+    params : RollbotParams
+        The robot and its floor (the plant's slope applies).
+    start_state : numpy.ndarray (11,)
+        The state at the start (at rest), as ``Problem.initial_state``.
+    stops : sequence of (x, y)
+        The stops, m, in order.
+
+    Returns
+    -------
+    TimeBound
+
+    Raises
+    ------
+    NumericalFailure
+        If a leg cannot be planned.
+    """
+    start = time.perf_counter()
+    legs = _plan_legs(params, start_state, stops)
+    return TimeBound(float(sum(legs)), tuple(legs), time.perf_counter() - start)
+
+
+def n_shape_bound(params: RollbotParams) -> TimeBound:
+    """The minimum-time bound of the bundled ``n_shape`` course for the robot ``params`` on a level floor."""
+    from rollbot_oc.dynamics import rest_state
+    from rollbot_oc.scenarios import load_bundled
+
+    course = load_bundled("n_shape")
+    level = params.replace(slope=0.0)
+    state = rest_state(level, position=course.start_position, heading=course.start_heading)
+    return minimum_time_bound(level, state, course.mission.stops)

@@ -80,7 +80,7 @@ from pathlib import Path
 import numpy as np
 
 from rollbot_oc.control.missions import (
-    STOP_TOLERANCE, Circle, StopRule, Waypoints, centre_of_curvature, reached_stops,
+    STOP_TOLERANCE, Circle, Waypoints, centre_of_curvature, reached_stops,
 )
 from rollbot_oc.dynamics import OMEGA, rest_state
 from rollbot_oc.errors import ConfigError, NumericalFailure
@@ -589,7 +589,7 @@ def _waypoint_metrics(problem: Problem, waypoints: Waypoints, result: Simulation
     """Stops reached by the true trajectory (``StopRule``: near the waypoint and at rest for 0.5 s), in order."""
     centre_speed = problem.params.R * np.hypot(result.x[OMEGA][0], result.x[OMEGA][1])
     stops = reached_stops(result.t, result.position, centre_speed, result.driving_speed, waypoints.stops,
-                          StopRule(tolerance=waypoints.stop_tolerance))
+                          waypoints.stop_rule)
     errors = [float(stop["error"]) for stop in stops]
     out = {"stop_errors": errors, "stop_times": [float(stop["time"]) for stop in stops]}
     if result.estimation is not None:  # the robot's belief is no measurement: the true position counts

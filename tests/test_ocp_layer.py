@@ -77,7 +77,7 @@ def test_plan_flies_in_the_plant(leg):
 def test_an_rti_step_from_the_converged_solution_stays_there(leg):
     ocp, _, sol, parameters = leg
     step = ocp.solver("rti", compiled=False).attempt(warm=sol, **parameters)
-    assert step.success and np.abs(step.w - sol.w).max() < 1e-3
+    assert step.success and np.abs(step.w - sol.w).max() < 1e-4  # measured 1.2e-5: IPOPT's tolerance, 1e-8
 
 
 def test_constraint_jacobian_agrees_with_finite_differences(leg):

@@ -125,6 +125,11 @@ class Waypoints:
                 raise ValueError(f"waypoint {name} = {value!r} must be > 0 m")
 
     @property
+    def stop_rule(self) -> "StopRule":
+        """When a stop counts as reached (within ``stop_tolerance``, at rest for 0.5 s)."""
+        return StopRule(tolerance=self.stop_tolerance)
+
+    @property
     def stops(self) -> list[np.ndarray]:
         """The points to stop at, m."""
         return [w.point for w in self.points if w.stop]

@@ -47,7 +47,7 @@ from dataclasses import dataclass, field, replace
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.control.missions import Circle, StopMonitor, StopRule, Waypoints
+from rollbot_oc.control.missions import Circle, StopMonitor, Waypoints
 from rollbot_oc.control.ocp import (
     NP, OCPSettings, OrbitEntry, RestToRest, SolveFailed, interval_function, stage_function,
 )
@@ -148,8 +148,6 @@ class NMPCSettings:
         Random-walk rate of the tilt estimate, 1/sqrt(s).
     gyro_sigma : float
         Assumed one-step prediction error of the angular velocity, rad/s.
-    rest_speed : float
-        Shell angular speed below which a stopped robot is at rest, rad/s.
     hold_time : float
         How long after a leg's plan ends a robot at rest away from its stop
         waits before it gets a new leg to the same stop, s (it never moves on
@@ -203,7 +201,6 @@ class NMPCSettings:
     estimate_tilt: bool = True
     tilt_process_noise: float = 0.01
     gyro_sigma: float = 2e-3
-    rest_speed: float = 0.02
     hold_time: float = 3.0
     hold_radius: float = 0.05
     replan_distance: float = 0.15
@@ -633,7 +630,7 @@ class NMPC:
         if any(not w.stop for w in getattr(mission, "points", ())):
             raise ValueError("the NMPC plans stops; pass-through waypoints are for the PID's waypoint layer")
         self.mission = mission
-        self._rule = StopRule(tolerance=getattr(mission, "stop_tolerance", StopRule.tolerance))
+        self._rule = mission.stop_rule if isinstance(mission, Waypoints) else None
         self.params = params or RollbotParams()
         self.dt = dt
         self.settings = s = settings or NMPCSettings()

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rollbot_oc.control.missions import STOP_TOLERANCE, Circle, StopMonitor, StopRule, Waypoints
+from rollbot_oc.control.missions import Circle, StopMonitor, StopRule, Waypoints
 from rollbot_oc.quasi_stable import RadiusMap
 
 __all__ = ["StopPredictor", "Target", "WaypointLayer"]
@@ -125,7 +125,7 @@ class WaypointLayer:
                              f"({radius_map.R_min:.3f}, {radius_map.R_max:.3f}) m")
         self.mission, self.radius_map = mission, radius_map
         self.stop_radius, self.align_tolerance = stop_radius, align_tolerance
-        self.rule = StopRule(tolerance=getattr(mission, "stop_tolerance", STOP_TOLERANCE))
+        self.rule = mission.stop_rule if isinstance(mission, Waypoints) else StopRule()
         self.predictor = StopPredictor(radius_map, decel)
         self.reset()
 

@@ -8,9 +8,10 @@
     ocp.initial_state()                             # x(0) = parameter "x0"
     ocp.minimize_time()
     ocp.add_cost(1e-3 * u.accel**2)                 # integral over the horizon
-    ocp.subject_to(motor_torque(margin=0.9), no_jump(0.1), no_slide(0.95), driving_speed(0.98), motor_accel())
+    ocp.subject_to(motor_torque(ocp, 0.9), no_jump(ocp, 0.1), no_slide(ocp, 0.95), driving_speed(ocp, 0.98),
+                   motor_accel(ocp))                # rollbot_oc.ocp.constraints
     ocp.subject_to(x.position == goal, at="end")
-    ocp.subject_to(at_rest(), at="end")
+    ocp.subject_to(at_rest(ocp), at="end")
     solution = ocp.solver("ipopt").solve(x0=z0, goal=[0, 1.2], p=params.vector())
 
 Expressions are CasADi SX in the symbols of one stage: ``ocp.x`` (states),

@@ -8,8 +8,10 @@ The bound of a course is the sum of the minimum times of its legs, each a
 rest-to-rest plan over the full dynamics with the motor's torque, speed and
 acceleration limits and the no-jump and no-slide margins of the planner
 (``OCPSettings``), each leg starting where the previous plan ended (heading
-included).  It is a bound in the sense the issue tracker uses it: what the
-planner finds, a local optimum, not a proven global minimum.
+included), each the fastest of three starts (``RestToRest.fastest``).  It is
+a bound in the sense the issue tracker uses it: what the planner finds, a
+local optimum, not a proven global minimum (single starts land in optima up
+to twice as slow).
 
 The N-shape bound of a design (``n_shape_bound``) is this bound on the
 bundled ``n_shape`` scenario's start and stops, on a level floor: a property

@@ -56,7 +56,7 @@ from rollbot_oc.rotations import (
 __all__ = [
     "STATE_NAMES", "STATE_UNITS", "NX", "NU", "NW", "POS", "QUAT", "OMEGA", "THETA", "THETA_DOT",
     "PointMass", "ShellDynamics", "shell_dynamics", "pendulum_mass", "gravity_vector", "rk4", "motor_speed_clip",
-    "SymbolicModel", "symbolic_model", "RollbotModel", "rest_state",
+    "SymbolicModel", "symbolic_model", "RollbotModel", "rest_state", "imbalance",
     "NZ", "REDUCED_NAMES", "ReducedModel", "reduced_model", "to_reduced", "from_reduced",
     "StateSlices", "FULL", "REDUCED",
 ]
@@ -341,6 +341,36 @@ def symbolic_model() -> SymbolicModel:
     u_sat = ca.fmin(ca.fmax(u, lower), upper)
     plant_rhs = ca.Function("rollbot_plant_rhs", ins, [ca.substitute(terms["xdot"], u, u_sat)], names, ["xdot"])
     return SymbolicModel(f, reaction, margins, motor_torque, energy, power, accel_bounds, plant_rhs)
+
+
+def imbalance(pendulum_quaternion, p):
+    """How far the robot is from balance at rest: the centre of mass's offset across gravity, per ``R``.
+
+    A robot at rest is in static equilibrium when its centre of mass lies on the
+    line through the contact point along gravity; this is the offset from that
+    line in the floor's x and y directions, divided by the shell radius.  On a
+    level floor it is the pendulum mass's horizontal offset (scaled); on a
+    slope the mass must hang a little uphill of the shell centre.
+
+    Parameters
+    ----------
+    pendulum_quaternion : casadi.SX or MX (4,)
+        Attitude of the pendulum frame (reduced state), body -> floor.
+    p : casadi.SX or MX (NP,)
+        Parameter vector (its tilt is the floor's slope).
+
+    Returns
+    -------
+    casadi expression (2,), dimensionless
+    """
+    P = ParamView(p)
+    body = ca.vertcat(P.r0 * ca.sin(P.phi), 0, -P.r0 * ca.cos(P.phi))  # the mass in the pendulum frame
+    mass = ca.mtimes(quat_to_matrix(pendulum_quaternion), body)
+    up = ca.vertcat(0, 0, P.R)  # shell centre above the contact point
+    com = (P.M * up + P.m * (up + mass)) / (P.M + P.m)
+    down = ca.vertcat(P.tilt[0], P.tilt[1], -ca.sqrt(1 - P.tilt[0] ** 2 - P.tilt[1] ** 2))  # gravity per g
+    across = com - ca.dot(com, down) * down
+    return across[0:2] / P.R
 
 
 def rest_state(params: RollbotParams | None = None, position=(0.0, 0.0), heading: float = 0.0,

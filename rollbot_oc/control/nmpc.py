@@ -49,7 +49,7 @@ import numpy as np
 
 from rollbot_oc.control.missions import Circle, StopMonitor, Waypoints
 from rollbot_oc.control.ocp import (
-    NP, OCPSettings, OrbitEntry, RestToRest, SolveFailed, interval_function, stage_function,
+    NP, OCPSettings, OrbitEntry, RestToRest, SolveFailed, interval_function, quasi_stable_guess, stage_function,
 )
 from rollbot_oc.codegen import compiled, compiler
 from rollbot_oc.errors import interruptible
@@ -100,6 +100,12 @@ class TrackingWeights:
         return cls(position=1500.0, terminal=20.0, omega=40.0)
 
     @classmethod
+    def for_holding(cls) -> "TrackingWeights":
+        """At a stop, once its leg has ended: damp the motion and keep the motor quiet rather than chase
+        the last centimetres (a firm hold on position turns measurement noise into motor jitter)."""
+        return cls(position=200.0, terminal=20.0, omega=40.0, speed=2.0, accel=0.5)
+
+    @classmethod
     def for_circles(cls) -> "TrackingWeights":
         """Circles: the distance from the circle matters, not the point on it (the reference is re-phased)."""
         return cls(position=400.0, radial=4000.0, terminal=5.0)
@@ -129,9 +135,10 @@ class NMPCSettings:
         p95 under 5 ms) or ``"ipopt"`` (converged every period; 0.1 to 0.5 s
         per solve on a 2-core machine, so too slow for 10 Hz replanning there:
         its late solves fall back).
-    waypoint_weights, circle_weights : TrackingWeights
-        Tracking weights for waypoint and circle missions (defaults in
-        ``TrackingWeights.for_waypoints`` and ``for_circles``).
+    waypoint_weights, hold_weights, circle_weights : TrackingWeights
+        Tracking weights on the way to a stop, holding at it once its leg has
+        ended, and on circles (defaults in ``TrackingWeights.for_waypoints``,
+        ``for_holding`` and ``for_circles``).
     torque_margin : float
         Fraction of the torque limit the NMPC may use.
     normal_margin : float
@@ -156,14 +163,32 @@ class NMPCSettings:
         A robot pushed more than ``replan_distance`` (m) off its plan gets a
         new leg to its stop from where it is, at most once per
         ``replan_interval`` (s).
+    replan_angle : float
+        A leg planned ahead is followed only if the robot's attitude at the
+        stop is within this angle of the one it was planned from (and its
+        position within ``replan_distance``); else the leg is planned from
+        where the robot is, rad.
     hold_radius : float
         At the end of a leg within this distance of its stop (m), the NMPC holds
         the robot where it arrived (damping its motion) instead of chasing the
         last centimetres.
-    plan_slack : float
-        The tracked plans take this fraction longer than the fastest ones, and
-        spend the spare time on a smoother motor profile (least effort) on the
-        NMPC's own grid: margin for the feedback.
+    plan_handover : float
+        A leg planned from where the robot is (the first, or a replan) starts at
+        once on the quasi-stable guess (a full-model simulation); the
+        minimum-time leg refined from it takes over this long after, from where
+        the guess then is, s.
+    plan_ahead : float
+        The next leg is planned (from the rest state the current leg ends in,
+        on the tilt estimated by then) when this fraction of the current leg
+        has gone by, so that it is ready at the stop.
+    plan_starts : int
+        A leg planned ahead is solved from this many quasi-stable guesses, and
+        the fastest result is kept.
+    plan_iteration_time, plan_guess_time : float
+        Modelled compute time of one IPOPT iteration of a leg's plan, and of
+        the quasi-stable guesses of a leg planned ahead, s: a plan is used only
+        once that much simulated time has passed after it was started (with
+        ``realtime``, its measured wall-clock time instead).
     entry_times : tuple of float
         Circles: durations tried, in order, for the planned entry onto the
         orbit (least effort in that time), s.
@@ -184,7 +209,11 @@ class NMPCSettings:
         RTI: evaluate the interval linearisation as compiled C
         (``rollbot_oc.codegen``); ``None`` uses it when a C compiler exists.
     plan : OCPSettings
-        Settings of the minimum-time plans.
+        Settings of the minimum-time legs (a coarser grid than the offline
+        default, scalar expressions, and 15 % of the motor's acceleration left
+        to the feedback).
+    entry : OCPSettings
+        Settings of a circle's entry onto its orbit (its ``N`` follows the entry time).
     """
 
     N: int = 30
@@ -192,6 +221,7 @@ class NMPCSettings:
     substeps: int = 2
     solver: str = "rti"
     waypoint_weights: "TrackingWeights" = None
+    hold_weights: "TrackingWeights" = None
     circle_weights: "TrackingWeights" = None
     torque_margin: float = 0.95
     normal_margin: float = 0.1
@@ -204,21 +234,29 @@ class NMPCSettings:
     hold_time: float = 3.0
     hold_radius: float = 0.05
     replan_distance: float = 0.15
+    replan_angle: float = 0.2
     replan_interval: float = 1.0
-    plan_slack: float = 0.1
+    plan_handover: float = 2.0
+    plan_ahead: float = 0.25
+    plan_iteration_time: float = 0.025
+    plan_starts: int = 2
+    plan_guess_time: float = 0.5
     entry_times: tuple = (5.0, 7.0, 10.0)
     max_solve_time: float | None = None
     realtime: bool = False
     rti_step_time: float = 0.01
     ipopt_iteration_time: float = 0.01
     compiled: bool | None = None
-    plan: OCPSettings = field(default_factory=OCPSettings)
+    plan: OCPSettings = field(default_factory=lambda: OCPSettings(N=40, accel_margin=0.85, expand=True))
+    entry: OCPSettings = field(default_factory=OCPSettings)
 
     def __post_init__(self):
         if self.waypoint_weights is None:
             object.__setattr__(self, "waypoint_weights", TrackingWeights.for_waypoints())
         if self.circle_weights is None:
             object.__setattr__(self, "circle_weights", TrackingWeights.for_circles())
+        if self.hold_weights is None:
+            object.__setattr__(self, "hold_weights", TrackingWeights.for_holding())
         if self.solver not in ("ipopt", "rti"):
             raise ValueError(f"NMPC solver = {self.solver!r}; valid are 'ipopt', 'rti'")
         if not (isinstance(self.N, int) and self.N >= 2):
@@ -249,10 +287,12 @@ class TrackingSolver:
         self.lbg = np.concatenate([np.zeros(NZ), np.tile(np.concatenate([np.zeros(NZ), [-tau, s.normal_margin * weight,
                                                                                           0.0]]), N)])
         self.ubg = np.concatenate([np.zeros(NZ), np.tile(np.concatenate([np.zeros(NZ), [tau, np.inf, np.inf]]), N)])
-        # least-squares tracking residuals (Gauss-Newton friendly)
-        root = np.sqrt(weights.diagonal(N))
-        res_state = (Z - Zr) * ca.DM(root[:NZ * (N + 1)].reshape(N + 1, NZ).T)
-        res_input = (U - Ur) * ca.DM(root[NZ * (N + 1):]).T
+        # least-squares tracking residuals (Gauss-Newton friendly); the square roots of the weights are
+        # a parameter of each solve
+        self.diag = weights.diagonal(N)
+        root = ca.MX.sym("root", NZ * (N + 1) + N)
+        res_state = (Z - Zr) * ca.reshape(root[:NZ * (N + 1)], NZ, N + 1)
+        res_input = (U - Ur) * root[NZ * (N + 1):].T
         # circles: the distance from the target circle (only its radial part matters for the mission)
         circle = ca.MX.sym("circle", 3 + N + 1)  # centre (2), radius, square root of each node's weight
         offsets = Z[0:2, :] - ca.repmat(circle[0:2], 1, N + 1)
@@ -264,7 +304,7 @@ class TrackingSolver:
         speed = 0.98 * params.max_speed
         self.lbx[9:NZ * (N + 1):NZ], self.ubx[9:NZ * (N + 1):NZ] = -speed, speed
         self.lbx[NZ * (N + 1):], self.ubx[NZ * (N + 1):] = -params.max_accel, params.max_accel
-        par = ca.vertcat(z0, ca.vec(Zr), ca.vec(Ur), p, circle)
+        par = ca.vertcat(z0, ca.vec(Zr), ca.vec(Ur), p, circle, root)
         self.n_x, self.n_g = n, g.shape[0]
         nlp = {"x": x, "p": par, "f": 0.5 * ca.sumsqr(residual), "g": g}
         opts = {"ipopt": {"print_level": 0, "sb": "yes", "max_iter": 50, "tol": 1e-6,
@@ -273,17 +313,19 @@ class TrackingSolver:
                 "print_time": False}
         self.nlp = ca.nlpsol("nmpc_ipopt", "ipopt", nlp, opts)
 
-    def solve(self, z0, Zr, Ur, p, warm=None, circle=None):
+    def solve(self, z0, Zr, Ur, p, warm=None, circle=None, diag=None):
         """Solve from ``warm``; returns ``(x, lam, status, success, seconds)``.
 
         ``circle = (centre (2,), radius, weights (N+1,))`` adds each node's squared distance from a
-        target circle, weighted, to the tracking cost (m, 1/m^2).
+        target circle, weighted, to the tracking cost (m, 1/m^2).  ``diag``: the tracking weights of
+        every decision variable (``TrackingWeights.diagonal``), else those the solver was built with.
         """
         if circle is None:
             circle = (np.zeros(2), 1.0, np.zeros(self.settings.N + 1))
         centre, radius, node_weights = circle
         c = np.concatenate([centre, [radius], np.sqrt(node_weights)])
-        par = np.concatenate([z0, np.asarray(Zr).T.ravel(), np.ravel(Ur), p, c])
+        root = np.sqrt(self.diag if diag is None else diag)
+        par = np.concatenate([z0, np.asarray(Zr).T.ravel(), np.ravel(Ur), p, c, root])
         x_warm, lam_x, lam_g = warm if warm is not None else (None, None, None)
         if x_warm is None:
             x_warm = np.concatenate([np.asarray(Zr).T.ravel(), np.ravel(Ur)])
@@ -397,7 +439,7 @@ class RTISolver:
         self.qp = ca.conic("nmpc_qp", "qrqp", {"h": self.H_sparsity, "a": self.A_sparsity},
                            {"print_iter": False, "print_header": False, "error_on_fail": False, "max_iter": 150})
 
-    def _qp_data(self, x, z0, Zr, Ur, p, circle):
+    def _qp_data(self, x, z0, Zr, Ur, p, circle, diag):
         N = self.settings.N
         Z = x[:NZ * (N + 1)].reshape(N + 1, NZ).T
         U = x[NZ * (N + 1):]
@@ -413,8 +455,8 @@ class RTISolver:
         # Gauss-Newton cost: diagonal tracking part plus the circle's radial residuals
         xref = np.concatenate([np.asarray(Zr).T.ravel(), np.ravel(Ur)])
         diff = x - xref
-        grad = self.diag * diff
-        hdiag = self.diag.copy()
+        grad = diag * diff
+        hdiag = diag.copy()
         offdiag = np.zeros(N + 1)
         if circle is not None and np.any(circle[2] > 0):
             centre, radius, w_r = circle
@@ -431,11 +473,12 @@ class RTISolver:
         H = ca.DM(self.H_sparsity, np.concatenate([hdiag, np.repeat(offdiag, 2)])[self.H_order])
         return H, grad, g, A
 
-    def solve(self, z0, Zr, Ur, p, warm=None, circle=None):
+    def solve(self, z0, Zr, Ur, p, warm=None, circle=None, diag=None):
         """``iterations`` SQP steps from ``warm``; returns ``(x, lam, status, success, seconds)``.
 
-        ``circle``: as for ``TrackingSolver.solve``.
+        ``circle``, ``diag``: as for ``TrackingSolver.solve``.
         """
+        diag = self.diag if diag is None else diag
         x, lam_x, lam_g = warm if warm is not None else (None, None, None)
         if x is None:
             x = np.concatenate([np.asarray(Zr).T.ravel(), np.ravel(Ur)])
@@ -443,7 +486,7 @@ class RTISolver:
         start = time.perf_counter()
         ok, status = True, "success"
         for _ in range(self.iterations):
-            H, grad, g, A = self._qp_data(x, np.asarray(z0, float), Zr, Ur, p, circle)
+            H, grad, g, A = self._qp_data(x, np.asarray(z0, float), Zr, Ur, p, circle, diag)
             if not (np.all(np.isfinite(g)) and np.all(np.isfinite(grad)) and np.all(np.isfinite(A.nonzeros()))):
                 ok, status = False, "non-finite linearisation"
                 break
@@ -640,7 +683,10 @@ class NMPC:
         self.weights = s.circle_weights if isinstance(mission, Circle) else s.waypoint_weights
         solver = TrackingSolver if s.solver == "ipopt" else RTISolver
         self.solver = solver(self.params, s, self.weights)
+        self._hold_diag = s.hold_weights.diagonal(s.N)
         self.estimator = TiltEstimator(self.params, dt, s.tilt_process_noise, s.gyro_sigma)
+        # the legs' planner, built once (its floor tilt is set per plan from the estimate)
+        self._legs = _rest_to_rest(self.params.replace(slope=0.0), s.plan) if isinstance(mission, Waypoints) else None
         self.map = None  # set with the plans (for centre-of-curvature plots)
         self.reference = None
         self.plan_time = 0.0
@@ -649,27 +695,34 @@ class NMPC:
 
     # -- planning ---------------------------------------------------------------------------------
     def prepare(self, x0) -> Reference:
-        """Plan the whole mission from the full state ``x0`` (11,); called by ``run_problem`` before the run.
+        """What to follow first, from the full state ``x0`` (11,); called by ``run_problem`` before the run.
+
+        Stops: the quasi-stable guess of the first leg (a fraction of a second),
+        refined while the robot moves (see ``plan_handover``); every later leg
+        is planned during the one before.  Circles: the entry onto the orbit.
+        ``plan_time`` is the computation before the first command, s.
 
         Raises
         ------
         SolveFailed
-            If a minimum-time plan cannot be found.
+            If a circle's entry cannot be planned.
         """
         start = time.perf_counter()
         level = self.params.replace(slope=0.0)
-        settings = self.settings.plan
+        from rollbot_oc.quasi_stable import RadiusMap
+
+        self.map = RadiusMap(level)
         if isinstance(self.mission, Waypoints):
-            segments, z = [], to_reduced(x0)
-            for stop in self.mission.stops:
-                plan = self._leg(z, stop)
-                segments.append((plan, {"stop": stop}))
-                z = plan.z[:, -1].copy()
-                z[REDUCED.velocity] = 0.0
-            self.reference = Reference(segments)
+            self.reference = Reference([None] * len(self.mission.stops))
+            guess, handover = self._follow_guess(to_reduced(x0), 0.0)
+            self.plan_time = time.perf_counter() - start  # the first command can be given now
+            # the refinement runs while the robot moves (in simulation: it is used after its modelled time)
+            self._launch(0, 0.0, handover, guess.state(handover), guess.tail(handover, self.settings.plan.N))
+            return self.reference
         else:
-            # The minimum-time entry takes hundreds of IPOPT iterations (3.3 to 4.6 s for the paper's
-            # circles); a fixed entry time a little above it, with the least effort, solves in 1 to 4 s.
+            # The minimum-time entry takes hundreds of IPOPT iterations; a fixed entry time a little
+            # above it, with the least effort, converges in a fraction of the time.
+            settings = self.settings.entry
             for duration in self.settings.entry_times:
                 intervals = int(round(duration / self.settings.h))
                 entry = _orbit_entry(self.mission.radius, level, replace(settings, N=intervals))
@@ -682,23 +735,85 @@ class NMPC:
             orbit = {"qs": entry.qs_reduced, "centre": self.mission.centre, "phase": plan.extra["phase"],
                      "Omega": entry.quasi.Omega}
             self.reference = Reference([(plan, {})], orbit)
-        from rollbot_oc.quasi_stable import RadiusMap
-
-        self.map = RadiusMap(level)
         self.plan_time = time.perf_counter() - start
         return self.reference
 
-    def _grid(self, fastest: float) -> tuple[float, int]:
-        """Duration (s) and intervals of a plan on the NMPC's grid, ``plan_slack`` longer than the fastest."""
-        h = self.settings.h
-        N = int(math.ceil(fastest * (1.0 + self.settings.plan_slack) / h - 1e-9))
-        return N * h, N
+    # -- legs: planned while the robot moves --------------------------------------------------------
+    def _provisional(self, z, t_now: float):
+        """Start the current leg at once on its quasi-stable guess from ``z`` (a simulation of the model),
+        and plan the minimum-time leg from where the guess will be ``plan_handover`` s later."""
+        guess, handover = self._follow_guess(z, t_now)
+        self._launch(self.segment, t_now, t_now + handover, guess.state(handover),
+                     guess.tail(handover, self.settings.plan.N))
+
+    def _follow_guess(self, z, t_now: float):
+        """Make the current leg the quasi-stable guess from ``z``; ``(guess, handover time (s))``."""
+        s, stop = self.settings, self.mission.stops[self.segment]
+        guess = quasi_stable_guess(z, np.asarray(stop, float), self.params.replace(slope=0.0), s.plan.N)
+        guess.extra = {"goal": list(map(float, stop)), "provisional": True}
+        self.reference.segments[self.segment] = (guess, {"stop": stop})
+        self.segment_start = t_now
+        self._anchor = None
+        return guess, min(s.plan_handover, guess.T)
+
+    def _launch(self, segment: int, t_now: float, t_start, z_start, guess=None):
+        """Plan leg ``segment`` from ``z_start`` on the estimated floor; it may be used once its modelled
+        compute time has passed, and is followed from the absolute time ``t_start`` (s; None: from the
+        moment the stop before it is reached)."""
+        s, stop = self.settings, self.mission.stops[segment]
+        wall = time.perf_counter()
+        try:  # a refinement from its guess, or the fastest of several starts
+            plan = self._legs.solve(z_start, stop, guess=guess, tilt=self.estimator.tilt.copy()) if guess is not None \
+                else self._legs.fastest(z_start, stop, s.plan_starts, tilt=self.estimator.tilt.copy())
+            iterations = plan.iterations
+        except SolveFailed as exc:  # reported, never followed
+            self.log["statuses"].append(f"plan failed: {exc.status}")
+            self.log["plan_failures"] += 1
+            plan, iterations = None, exc.plan.iterations if exc.plan is not None else 0
+        wall = time.perf_counter() - wall
+        self.log["plan_solve_times"].append(wall)
+        compute = wall if s.realtime else iterations * s.plan_iteration_time + (guess is None) * s.plan_guess_time
+        ready = t_now + s.h * math.ceil(compute / s.h - 1e-9)  # used at a solve instant
+        self._pending[segment] = {"plan": plan, "start": t_start, "ready": ready}
+
+    def _fits(self, pending, z) -> bool:
+        """Whether a leg planned ahead starts where the robot is: within ``replan_distance`` and with its
+        pendulum frame turned less than ``replan_angle`` from the robot's."""
+        if pending is None or pending["plan"] is None:
+            return False
+        start = pending["plan"].z[:, 0]
+        cos_half = abs(float(start[REDUCED.quaternion] @ z[REDUCED.quaternion]))
+        turned = 2.0 * math.acos(min(cos_half, 1.0))
+        near = np.linalg.norm(start[REDUCED.position] - z[REDUCED.position]) <= self.settings.replan_distance
+        return near and turned <= self.settings.replan_angle
+
+    def _take_pending(self, t_now: float) -> bool:
+        """Follow the planned leg of the current segment if it is ready and meant to start by now."""
+        pending = self._pending.get(self.segment)
+        if pending is None or t_now < pending["ready"] - 1e-9:
+            return False
+        start = pending["start"] if pending["start"] is not None else t_now
+        if t_now < start - 1e-9:
+            return False  # ready before its start: kept until then
+        del self._pending[self.segment]
+        if pending["plan"] is None:  # the plan failed: the robot goes on with what it follows
+            return False
+        self.reference.segments[self.segment] = (pending["plan"], {"stop": self.mission.stops[self.segment]})
+        self.segment_start = start
+        self._anchor = None
+        return True
 
     # -- the loop ---------------------------------------------------------------------------------
     def reset(self):
-        """Forget the run (keeps the plans)."""
+        """Forget the run; a mission prepared (``prepare``) and not yet run is kept."""
+        if getattr(self, "k", 0) > 0 or self.reference is None:
+            self.reference = None
+            self.segment, self.segment_start = 0, 0.0
+            self._pending = {}  # legs being planned, by segment
+            self._anchor = None
+            self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0, "late": 0,
+                        "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [], "plan_failures": 0}
         self.k = 0
-        self.segment, self.segment_start = 0, 0.0
         self.warm = None
         self.current = None  # (U, index of the interval in use)
         self.commands: dict[int, float] = {}
@@ -707,11 +822,8 @@ class NMPC:
         self.pid_until = -1.0
         self._pid_fresh = True
         self.stops: list[dict] = []
-        self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0, "late": 0,
-                    "failed": 0, "tilt": [], "replans": 0}
         self._monitor = None
         self._pid_goal = None
-        self._anchor = None
         self._done = False
         self.estimator.reset()
 
@@ -774,31 +886,42 @@ class NMPC:
         return self._monitor.update(obs.t, obs.position, centre_speed, obs.theta_dot)
 
     def _advance_mission(self, t_now: float, obs: Observation, reached: bool, z):
-        """Leave a stop once it is reached; if the robot came to rest away from it, plan a new leg to it."""
+        """Follow refined legs as they become ready, plan the next leg ahead, leave a stop once it is
+        reached, and plan a new leg to the stop from where the robot is if it came to rest away from it or
+        was pushed off its plan."""
         if self.reference is None or isinstance(self.mission, Circle):
             return
-        plan, info = self.reference.segments[self.segment]
+        s, i = self.settings, self.segment
+        self._take_pending(t_now)
+        plan, info = self.reference.segments[i]
         local = t_now - self.segment_start
+        if (i + 1 < len(self.mission.stops) and self.reference.segments[i + 1] is None and i + 1 not in self._pending
+                and not plan.extra.get("provisional") and i not in self._pending and local >= s.plan_ahead * plan.T):
+            end = plan.z[:, -1].copy()
+            end[REDUCED.velocity] = 0.0
+            self._launch(i + 1, t_now, None, end)
         if reached and local >= plan.T - 1e-9:
+            ahead = self._pending.get(i + 1)
+            if ahead is not None and t_now < ahead["ready"] - 1e-9:
+                return  # the next leg is still being planned: stay at this stop
             self.stops.append(self._monitor.record(obs.position))
             self.segment += 1
-            self.segment_start = t_now
             self.warm, self.current, self._monitor = None, None, None
-            if self.segment >= len(self.reference.segments):
+            if self.segment >= len(self.mission.stops):
                 self._done = True
+            elif not (self._fits(self._pending.get(self.segment), z) and self._take_pending(t_now)):
+                self._pending.pop(self.segment, None)  # nothing (or nothing that fits) planned ahead: from here
+                self._provisional(z, t_now)
             return
         anchor = self._anchor if self._anchor is not None else plan.state(local)[REDUCED.position]
-        off_course = np.linalg.norm(z[REDUCED.position] - anchor) > self.settings.replan_distance
-        settled_away = local >= plan.T + self.settings.hold_time and self._monitor is not None \
-            and self._monitor.settled_away
-        if settled_away or (off_course and local >= self.settings.replan_interval):
-            # never move on from here: plan a new leg to the same stop from where the robot is
-            self._anchor = None
-            try:
-                self.reference.segments[self.segment] = (self._leg(z, info["stop"]), info)
-            except SolveFailed as exc:  # keep holding on the old plan; try again after hold_time
-                self.log["statuses"].append(f"replan failed: {exc.status}")
-            self.segment_start = t_now
+        off_course = np.linalg.norm(z[REDUCED.position] - anchor) > s.replan_distance
+        settled_away = local >= plan.T + s.hold_time and self._monitor is not None and self._monitor.settled_away
+        if settled_away or (off_course and local >= s.replan_interval):
+            # never move on from here: a new leg to the same stop from where the robot is (the next leg,
+            # planned from where this one was to end, is planned again)
+            self._pending.pop(i, None)
+            self._pending.pop(i + 1, None)
+            self._provisional(z, t_now)
             self.warm, self.current = None, None
             self.log["replans"] += 1
 
@@ -813,7 +936,8 @@ class NMPC:
         if isinstance(self.mission, Circle):  # the distance from the circle counts once on the orbit
             on_orbit = (t_now - self.segment_start + s.h * np.arange(s.N + 1)) > self.reference.segments[0][0].T
             circle = (self.mission.centre, self.mission.radius, self.weights.radial * on_orbit)
-        x, lam, status, ok, seconds = self.solver.solve(z, Zr, Ur, self.estimator.params(), self.warm, circle)
+        diag = self._hold_diag if self._anchor is not None else None  # holding at a stop
+        x, lam, status, ok, seconds = self.solver.solve(z, Zr, Ur, self.estimator.params(), self.warm, circle, diag)
         compute = seconds if s.realtime else self.solver.modelled_time()
         late = compute > (s.h if s.max_solve_time is None else s.max_solve_time)
         self.log["solve_times"].append(seconds)
@@ -882,23 +1006,15 @@ class NMPC:
         self.commands.pop(k - 50, None)
         return Command(speed=speed)
 
-    def _leg(self, z, stop):
-        """A leg from the reduced state ``z`` to rest at ``stop``, on the NMPC's grid (see ``prepare``)."""
-        level = self.params.replace(slope=0.0)
-        settings = self.settings.plan
-        fastest = _rest_to_rest(level, settings).solve(z, stop)
-        T, N = self._grid(fastest.T)
-        plan = _rest_to_rest(level, replace(settings, N=N)).solve(z, stop, guess=fastest, duration=T)
-        plan.extra["fastest"] = fastest.T
-        return plan
-
     def report(self) -> dict:
         """Solve-time statistics (s), solver statuses, fallback counts, stops and plans."""
         times = np.array(self.log["solve_times"]) if self.log["solve_times"] else np.zeros(1)
         statuses = {}
         for st in self.log["statuses"]:
             statuses[st] = statuses.get(st, 0) + 1
-        plans = [seg[0].to_dict() for seg in self.reference.segments] if self.reference else []
+        legs = [seg for seg in self.reference.segments if seg is not None] if self.reference else []
+        plans = [seg[0].to_dict() for seg in legs]
+        plan_times = np.array(self.log["plan_solve_times"]) if self.log["plan_solve_times"] else np.zeros(1)
         return {
             "stops": list(self.stops),
             "solver": self.settings.solver,
@@ -915,7 +1031,11 @@ class NMPC:
             "plan_time": self.plan_time,
             "stop_replans": self.log["replans"],
             "plans": plans,
-            "plan_duration": float(sum(seg[0].T for seg in self.reference.segments)) if self.reference else None,
+            "plan_duration": float(sum(seg[0].T for seg in legs)) if legs else None,
+            "plan_solves": len(self.log["plan_solve_times"]),
+            "plan_failures": self.log["plan_failures"],
+            "plan_solve_time_median": float(np.median(plan_times)),
+            "plan_solve_time_max": float(plan_times.max()),
             "tilt_estimate": self.estimator.tilt.tolist(),
         }
 

@@ -46,14 +46,14 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.errors import NotConverged, interruptible
-from rollbot_oc.dynamics import NW, NZ, from_reduced, reduced_model, rk4, to_reduced
-from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
+from rollbot_oc.dynamics import NW, NZ, from_reduced, imbalance, reduced_model, rk4, to_reduced
+from rollbot_oc.params import PARAM_VECTOR_FIELDS, TILT, RollbotParams
 from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_state
-from rollbot_oc.rotations import quat_multiply, quat_to_matrix
+from rollbot_oc.rotations import quat_multiply
 from rollbot_oc.simulate import simulate
 
 __all__ = ["OCPSettings", "Plan", "RestToRest", "OrbitEntry", "plan_waypoints", "interval_function",
-           "stage_function", "quasi_stable_guess", "orbit_state", "SolveFailed"]
+           "stage_function", "quasi_stable_guess", "quasi_stable_guesses", "orbit_state", "SolveFailed"]
 
 NP = len(PARAM_VECTOR_FIELDS)
 _P = {name: i for i, name in enumerate(PARAM_VECTOR_FIELDS)}
@@ -94,6 +94,12 @@ class OCPSettings:
         IPOPT iteration limit.
     hessian : {"limited-memory", "exact"}
         IPOPT's Hessian of the Lagrangian (see module doc).
+    accel_margin : float
+        Fraction of the motor's acceleration limit the plan may use (the rest
+        is left to a feedback that tracks it).
+    expand : bool
+        Build the NLP from scalar expressions (CasADi's ``expand``): slower to
+        build once, faster to solve.
     """
 
     N: int = 60
@@ -108,6 +114,8 @@ class OCPSettings:
     T_max: float = 60.0
     max_iter: int = 400
     hessian: str = "limited-memory"
+    accel_margin: float = 1.0
+    expand: bool = False
 
 
 @functools.lru_cache(maxsize=None)
@@ -133,12 +141,6 @@ def stage_function(substeps: int, friction_margin: float) -> ca.Function:
     return ca.Function("stage", [z, u, zn, h, p],
                        [ca.vertcat(zn - F(z, u, h, p), red.motor_torque(z, u, p, _W0), N[2], slack)],
                        ["z", "u", "z_next", "h", "p"], ["g"])
-
-
-def _mass_offset(z, p):
-    """Horizontal offset of the pendulum mass from the shell centre (zero at rest)."""
-    body = ca.vertcat(p[_P["r0"]] * ca.sin(p[_P["phi"]]), 0, -p[_P["r0"]] * ca.cos(p[_P["phi"]]))
-    return ca.mtimes(quat_to_matrix(z[2:6]), body)[0:2]
 
 
 def orbit_state(qs_reduced, centre, phase):
@@ -209,6 +211,15 @@ class Plan:
         return Plan(t, self.state(t), u, self.T, self.status, self.success, self.iterations, self.solve_time,
                     dict(self.extra))
 
+    def tail(self, t0: float, N: int) -> "Plan":
+        """The rest of the trajectory from time ``t0`` (s) on, on ``N`` equal intervals, its time from 0."""
+        t0 = min(max(float(t0), 0.0), self.T)
+        T = max(self.T - t0, 1e-3)
+        t = np.linspace(0.0, T, N + 1)
+        u = np.array([self.accel(t0 + tm) for tm in 0.5 * (t[1:] + t[:-1])])
+        return Plan(t, self.state(t0 + t), u, T, self.status, self.success, self.iterations, self.solve_time,
+                    dict(self.extra))
+
     @property
     def driving_speed(self) -> np.ndarray:
         """Planned driving speed at the nodes, rad/s."""
@@ -250,17 +261,19 @@ class _MinTimeOCP:
         speed = s.speed_margin * params.max_speed
         lbx[9:NZ * (N + 1):NZ], ubx[9:NZ * (N + 1):NZ] = -speed, speed
         iu = NZ * (N + 1)
-        lbx[iu:iu + N], ubx[iu:iu + N] = -params.max_accel, params.max_accel
+        accel = s.accel_margin * params.max_accel
+        lbx[iu:iu + N], ubx[iu:iu + N] = -accel, accel
         lbx[iu + N], ubx[iu + N] = s.T_min, s.T_max
         self.bounds = dict(lbx=lbx, ubx=ubx, lbg=np.concatenate(self.lbg), ubg=np.concatenate(self.ubg))
         nlp = {"x": x, "p": ca.vertcat(self.z0, self.pp, *self.extra_params), "f": self.cost, "g": ca.vertcat(*self.g)}
         opts = {"ipopt": {"max_iter": s.max_iter, "print_level": 0, "sb": "yes", "tol": 1e-6, "acceptable_tol": 1e-4,
-                          "hessian_approximation": s.hessian}, "print_time": False}
+                          "hessian_approximation": s.hessian}, "print_time": False, "expand": s.expand}
         self.solver = ca.nlpsol(self.name, "ipopt", nlp, opts)
         self.n_extra = n - (iu + N + 1)
 
-    def _solve(self, z0, p_extra, guess: Plan, guess_extra=(), duration: float | None = None) -> Plan:
-        """Solve from a guess; ``duration`` (s) fixes the time (then the effort is what is minimised)."""
+    def _solve(self, z0, p_extra, guess: Plan, guess_extra=(), duration: float | None = None, tilt=None) -> Plan:
+        """Solve from a guess; ``duration`` (s) fixes the time (then the effort is what is minimised);
+        ``tilt`` (2,) replaces the parameters' floor tilt vector (an estimated slope)."""
         N = self.settings.N
         if guess.u.size != N:
             guess = guess.resample(N)
@@ -270,9 +283,12 @@ class _MinTimeOCP:
             i_T = NZ * (N + 1) + N
             bounds["lbx"], bounds["ubx"] = bounds["lbx"].copy(), bounds["ubx"].copy()
             bounds["lbx"][i_T] = bounds["ubx"][i_T] = duration
+        p = self.params.vector()
+        if tilt is not None:
+            p[TILT] = tilt
         start = time.perf_counter()
         with interruptible(self.name):
-            sol = self.solver(x0=x0, p=np.concatenate([z0, self.params.vector(), p_extra]), **bounds)
+            sol = self.solver(x0=x0, p=np.concatenate([z0, p, p_extra]), **bounds)
         elapsed = time.perf_counter() - start
         stats = self.solver.stats()
         x = np.array(sol["x"]).ravel()
@@ -298,17 +314,19 @@ class RestToRest(_MinTimeOCP):
         s = self.settings
         self.goal = ca.MX.sym("goal", 2)
         zN = self.Z[:, -1]
-        self.g += [zN[0:2] - self.goal, zN[6:10], _mass_offset(zN, self.pp)]
+        self.g += [zN[0:2] - self.goal, zN[6:10], imbalance(zN[2:6], self.pp)]
         tol = s.goal_tolerance
         self.lbg += [np.full(2, -tol), np.zeros(4), np.zeros(2)]
         self.ubg += [np.full(2, tol), np.zeros(4), np.zeros(2)]
         self.extra_params = [self.goal]
         self._finish()
 
-    def solve(self, start, goal, guess: Plan | None = None, duration: float | None = None) -> Plan:
+    def solve(self, start, goal, guess: Plan | None = None, duration: float | None = None, tilt=None) -> Plan:
         """Plan from ``start`` (full state (11,) or reduced (10,)) to rest at ``goal`` (m).
 
-        Minimum time, or with ``duration`` (s) given, the least motor effort in that time.
+        Minimum time, or with ``duration`` (s) given, the least motor effort in that time.  ``tilt``
+        (2,), the floor's tilt vector (in-plane gravity per g), replaces the parameters' slope: the plan
+        then ends balanced on that floor.
 
         Raises
         ------
@@ -318,11 +336,43 @@ class RestToRest(_MinTimeOCP):
         z0 = _reduced(start)
         goal = np.asarray(goal, float)
         guess = guess or quasi_stable_guess(z0, goal, self.params, self.settings.N)
-        plan = self._solve(z0, goal, guess, duration=duration)
+        plan = self._solve(z0, goal, guess, duration=duration, tilt=tilt)
         plan.extra = {"goal": goal.tolist()}
         if not plan.success:
             raise SolveFailed(f"rest-to-rest plan to {goal.tolist()}", plan.status, plan)
         return plan
+
+
+    def fastest(self, start, goal, starts: int = 3, tilt=None) -> Plan:
+        """The fastest of the minimum-time plans found from the ``starts`` best quasi-stable guesses.
+
+        A minimum-time leg has local optima, and the guess decides which one
+        IPOPT finds; a few starts make the result much less a matter of luck.
+        The plan's ``iterations`` and ``solve_time`` are the totals over the
+        starts.
+
+        Raises
+        ------
+        SolveFailed
+            If no start converges (the last failure's status).
+        """
+        z0 = _reduced(start)
+        goal = np.asarray(goal, float)
+        best, failure, iterations, seconds = None, None, 0, 0.0
+        for guess in quasi_stable_guesses(z0, goal, self.params, self.settings.N, starts):
+            try:
+                plan = self.solve(z0, goal, guess=guess, tilt=tilt)
+            except SolveFailed as exc:
+                failure, plan = exc, exc.plan
+            iterations += plan.iterations if plan is not None else 0
+            seconds += plan.solve_time if plan is not None else 0.0
+            if plan is not None and plan.success and (best is None or plan.T < best.T):
+                best = plan
+        if best is None:
+            failure.plan.iterations, failure.plan.solve_time = iterations, seconds
+            raise failure
+        best.iterations, best.solve_time = iterations, seconds
+        return best
 
 
 class OrbitEntry(_MinTimeOCP):
@@ -438,15 +488,22 @@ def quasi_stable_guess(z0, goal, params: RollbotParams, N: int, keep: int = 6) -
     keep : int
         How many of the best quasi-stable candidates to simulate in the full plant.
     """
+    return quasi_stable_guesses(z0, goal, params, N, 1, keep)[0]
+
+
+def quasi_stable_guesses(z0, goal, params: RollbotParams, N: int, count: int, keep: int = 6) -> list[Plan]:
+    """The ``count`` best guesses of ``quasi_stable_guess``, best first: starts for a multi-start solve
+    (a minimum-time leg has local optima, and the guess decides which one the solver finds)."""
     from rollbot_oc.simulate import heading as heading_of
 
     level = params.replace(slope=0.0)
     radius_map = _radius_map(level)
     x0 = from_reduced(z0)
+    goal = np.asarray(goal, float)
     cands, ends, totals = _quasi_rest_points(np.asarray(z0[:2], float), float(heading_of(x0)), radius_map)
-    score = np.linalg.norm(ends - np.asarray(goal)[:, None], axis=0) + 0.01 * totals
-    best = None
-    for i in np.argsort(score)[:keep]:
+    score = np.linalg.norm(ends - goal[:, None], axis=0) + 0.01 * totals
+    runs = []
+    for i in np.argsort(score)[:max(keep, count)]:
         a, w, hold = cands[i]
         ramp = abs(w) / a
         total = 2 * ramp + hold
@@ -455,12 +512,13 @@ def quasi_stable_guess(z0, goal, params: RollbotParams, N: int, keep: int = 6) -
             return math.copysign(max(0.0, min(a * t, abs(w), a * (total - t))), w)
 
         run = simulate(x0, total + 1.0, params=level, speed=profile, stop_on_event=False)
-        miss = float(np.linalg.norm(run.position[:, -1] - goal)) + 0.01 * total
-        if best is None or miss < best[0]:
-            best = (miss, run, total + 1.0)
-    _, run, T = best
-    z, u = _from_simulation(run, N, T)
-    return Plan(np.linspace(0.0, T, N + 1), z, u, T, "guess", True, 0, 0.0, {"miss": best[0]})
+        runs.append((float(np.linalg.norm(run.position[:, -1] - goal)) + 0.01 * total, run, total + 1.0))
+    runs.sort(key=lambda r: r[0])
+    plans = []
+    for miss, run, T in runs[:count]:
+        z, u = _from_simulation(run, N, T)
+        plans.append(Plan(np.linspace(0.0, T, N + 1), z, u, T, "guess", True, 0, 0.0, {"miss": miss}))
+    return plans
 
 
 @functools.lru_cache(maxsize=8)
@@ -482,8 +540,9 @@ def _orbit_guess(z0, centre, ocp: OrbitEntry) -> tuple[Plan, float]:
 
 
 def plan_waypoints(start, stops, params: RollbotParams | None = None, settings: OCPSettings | None = None,
-                   ocp: RestToRest | None = None) -> list[Plan]:
-    """Minimum-time rest-to-rest legs through ``stops`` (m), each starting where the previous plan ends.
+                   ocp: RestToRest | None = None, starts: int = 3) -> list[Plan]:
+    """Minimum-time rest-to-rest legs through ``stops`` (m), each starting where the previous plan ends,
+    each the fastest from ``starts`` guesses (``RestToRest.fastest``).
 
     Raises
     ------
@@ -494,7 +553,7 @@ def plan_waypoints(start, stops, params: RollbotParams | None = None, settings: 
     z = _reduced(start)
     plans = []
     for stop in stops:
-        plan = ocp.solve(z, stop)
+        plan = ocp.fastest(z, stop, starts)
         plans.append(plan)
         z = plan.z[:, -1].copy()
         z[6:10] = 0.0  # the leg ends at rest

@@ -16,9 +16,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.dynamics import NW, reduced_model
+from rollbot_oc.dynamics import NW, imbalance, reduced_model
 from rollbot_oc.ocp.problem import OCP, Constraint
-from rollbot_oc.rotations import quat_to_matrix
 
 __all__ = ["motor_torque", "driving_speed", "motor_accel", "no_jump", "no_slide", "position_box",
            "circular_obstacle", "at_rest", "reaction_force"]
@@ -97,14 +96,5 @@ def at_rest(ocp: OCP) -> Constraint:
     parameters describe, level or sloped.  On a level floor it is the
     pendulum straight below the shell centre.
     """
-    P = ocp.params
-    T = quat_to_matrix(ocp.state.quaternion)
-    body = ca.vertcat(P.r0 * ca.sin(P.phi), 0, -P.r0 * ca.cos(P.phi))  # mass in the pendulum frame
-    mass = ca.mtimes(T, body)
-    # centre of mass relative to the contact point, and gravity per g (floor frame)
-    com = (P.M * ca.vertcat(0, 0, P.R) + P.m * (ca.vertcat(0, 0, P.R) + mass)) / (P.M + P.m)
-    down = ca.vertcat(P.tilt[0], P.tilt[1], -ca.sqrt(1 - P.tilt[0] ** 2 - P.tilt[1] ** 2))
-    # component of the centre of mass across gravity, in the floor's x and y directions
-    across = com - ca.dot(com, down) * down
-    expr = ca.vertcat(ocp.state.velocity, across[0:2] / P.R)
+    expr = ca.vertcat(ocp.state.velocity, imbalance(ocp.state.quaternion, ocp.params.vector))
     return Constraint(expr, 0.0, 0.0, "at rest")

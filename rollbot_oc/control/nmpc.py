@@ -168,6 +168,9 @@ class NMPCSettings:
         stop is within this angle of the one it was planned from (and its
         position within ``replan_distance``); else the leg is planned from
         where the robot is, rad.
+    finish_hold : float
+        After the last stop is reached, the NMPC holds the robot there this
+        long before it reports ``done`` (the run then ends), s.
     hold_radius : float
         At the end of a leg within this distance of its stop (m), the NMPC holds
         the robot where it arrived (damping its motion) instead of chasing the
@@ -235,6 +238,7 @@ class NMPCSettings:
     hold_radius: float = 0.05
     replan_distance: float = 0.15
     replan_angle: float = 0.2
+    finish_hold: float = 1.0
     replan_interval: float = 1.0
     plan_handover: float = 2.0
     plan_ahead: float = 0.25
@@ -812,7 +816,7 @@ class NMPC:
             self._pending = {}  # legs being planned, by segment
             self._anchor = None
             self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0, "late": 0,
-                        "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [], "plan_failures": 0}
+                        "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [], "plan_failures": 0, "plan_wait": 0.0}
         self.k = 0
         self.warm = None
         self.current = None  # (U, index of the interval in use)
@@ -825,11 +829,12 @@ class NMPC:
         self._monitor = None
         self._pid_goal = None
         self._done = False
+        self._finished_at = None
         self.estimator.reset()
 
     @property
     def done(self) -> bool:
-        """True once every stop has been reached (never for a circle)."""
+        """True ``finish_hold`` seconds after every stop has been reached (never for a circle)."""
         return self._done
 
     def __call__(self, obs: Observation) -> Command:
@@ -892,6 +897,9 @@ class NMPC:
         if self.reference is None or isinstance(self.mission, Circle):
             return
         s, i = self.settings, self.segment
+        if self._finished_at is not None:  # the last stop is reached: hold there a little longer
+            self._done = t_now >= self._finished_at + s.finish_hold - 1e-9
+            return
         self._take_pending(t_now)
         plan, info = self.reference.segments[i]
         local = t_now - self.segment_start
@@ -903,13 +911,15 @@ class NMPC:
         if reached and local >= plan.T - 1e-9:
             ahead = self._pending.get(i + 1)
             if ahead is not None and t_now < ahead["ready"] - 1e-9:
-                return  # the next leg is still being planned: stay at this stop
+                self.log["plan_wait"] += s.h  # the next leg is still being planned: stay at this stop
+                return
             self.stops.append(self._monitor.record(obs.position))
+            if i + 1 >= len(self.mission.stops):
+                self._finished_at = t_now
+                return
             self.segment += 1
             self.warm, self.current, self._monitor = None, None, None
-            if self.segment >= len(self.mission.stops):
-                self._done = True
-            elif not (self._fits(self._pending.get(self.segment), z) and self._take_pending(t_now)):
+            if not (self._fits(self._pending.get(self.segment), z) and self._take_pending(t_now)):
                 self._pending.pop(self.segment, None)  # nothing (or nothing that fits) planned ahead: from here
                 self._provisional(z, t_now)
             return
@@ -1034,6 +1044,7 @@ class NMPC:
             "plan_duration": float(sum(seg[0].T for seg in legs)) if legs else None,
             "plan_solves": len(self.log["plan_solve_times"]),
             "plan_failures": self.log["plan_failures"],
+            "plan_wait": self.log["plan_wait"],
             "plan_solve_time_median": float(np.median(plan_times)),
             "plan_solve_time_max": float(plan_times.max()),
             "tilt_estimate": self.estimator.tilt.tolist(),

@@ -8,7 +8,7 @@ The bound of a course is the sum of the minimum times of its legs, each a
 rest-to-rest plan over the full dynamics with the motor's torque, speed and
 acceleration limits and the no-jump and no-slide margins of the planner
 (``OCPSettings``), each leg starting where the previous plan ended (heading
-included), each the fastest of three starts (``RestToRest.fastest``).  It is
+included), each the fastest of ``BOUND_STARTS`` starts (``RestToRest.fastest``).  It is
 a bound in the sense the issue tracker uses it: what the planner finds, a
 local optimum, not a proven global minimum (single starts land in optima up
 to twice as slow).
@@ -28,7 +28,9 @@ import numpy as np
 from rollbot_oc.errors import NumericalFailure
 from rollbot_oc.params import RollbotParams
 
-__all__ = ["TimeBound", "minimum_time_bound", "n_shape_bound"]
+__all__ = ["TimeBound", "minimum_time_bound", "n_shape_bound", "BOUND_STARTS"]
+
+BOUND_STARTS = 5  # guesses per leg; the fastest local optimum found is kept
 
 
 @dataclass(frozen=True)
@@ -58,10 +60,11 @@ def _plan_legs(params: RollbotParams, start_state: np.ndarray, stops) -> list[fl
     NumericalFailure
         If a leg cannot be planned (the leg and the solver's status are named).
     """
-    from rollbot_oc.control.ocp import SolveFailed, plan_waypoints
+    from rollbot_oc.control.ocp import OCPSettings, SolveFailed, plan_waypoints
 
-    try:
-        plans = plan_waypoints(start_state, [np.asarray(s, float) for s in stops], params)
+    try:  # the stage constraints as compiled C (the same problem, solved several times faster)
+        plans = plan_waypoints(start_state, [np.asarray(s, float) for s in stops], params, OCPSettings(compiled=True),
+                               starts=BOUND_STARTS)
     except SolveFailed as exc:
         raise NumericalFailure(str(exc), exc.status) from None
     return [float(plan.T) for plan in plans]

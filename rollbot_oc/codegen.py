@@ -107,7 +107,7 @@ def _build(cc: str, source: Path, target: Path, flags: tuple[str, ...]) -> str |
     return None  # ... then its checksum: a library without a matching checksum is never loaded
 
 
-def compiled(fun: ca.Function, flags: tuple[str, ...] = ("-O1",)) -> ca.Function:
+def compiled(fun: ca.Function, flags: tuple[str, ...] = ("-O1",), jacobian: bool = False) -> ca.Function:
     """``fun`` as a compiled C library (built once and cached), or ``fun`` itself if that cannot be done.
 
     Parameters
@@ -116,6 +116,9 @@ def compiled(fun: ca.Function, flags: tuple[str, ...] = ("-O1",)) -> ca.Function
         An SX Function (or any Function CasADi can generate C for).
     flags : tuple of str
         Compiler flags.
+    jacobian : bool
+        Also compile ``fun``'s Jacobian (by AD), which CasADi then uses for
+        every derivative of the loaded Function (for example inside an NLP).
 
     Returns
     -------
@@ -135,6 +138,8 @@ def compiled(fun: ca.Function, flags: tuple[str, ...] = ("-O1",)) -> ca.Function
             source = Path(tmp) / f"{name}.c"
             gen = ca.CodeGenerator(source.name, {"with_header": False})
             gen.add(fun)
+            if jacobian:
+                gen.add(fun.jacobian())
             gen.generate(tmp + os.sep)
             key = hashlib.sha1((source.read_text() + " ".join(flags) + ca.__version__).encode()).hexdigest()[:16]
             target = folder / f"{name}_{key}.so"

@@ -73,11 +73,52 @@ def test_initial_guess_comes_from_the_quasi_stable_theory():
 def test_waypoint_chain_and_fixed_time_variant():
     ocp = RestToRest(PARAMS)
     start = rest_state(PARAMS, position=(-0.3, -0.3))
-    plans = plan_waypoints(start, [[0.0, 0.0], [0.6, 0.3]], ocp=ocp)
+    plans = plan_waypoints(start, [[0.0, 0.0], [0.6, 0.3]], ocp=ocp, starts=1)
     assert len(plans) == 2 and np.allclose(plans[1].z[0:2, 0], plans[0].z[0:2, -1])
     slower = ocp.solve(start, [0.0, 0.0], duration=plans[0].T * 1.3)
     assert slower.T == pytest.approx(plans[0].T * 1.3)
     assert np.sum(slower.u**2) < np.sum(plans[0].u**2)  # more time, less effort
+
+
+def test_the_fastest_of_several_starts_is_no_slower_than_the_first():
+    """``fastest`` keeps the quickest local optimum; its first start is the single-start guess."""
+    ocp = RestToRest(PARAMS, OCPSettings(N=40, accel_margin=0.85, expand=True))  # the NMPC's legs
+    start = rest_state(PARAMS, position=(-0.3, -0.3))
+    single = ocp.solve(start, [0.0, 0.0])
+    best = ocp.fastest(start, [0.0, 0.0], starts=2)
+    assert best.success and best.T <= single.T + 1e-6
+    assert best.iterations >= single.iterations  # the total over the starts
+
+
+def test_a_balanced_state_stays_at_rest_on_a_slope():
+    """``imbalance`` = 0 is a static equilibrium of the full model on a 3 deg slope: released there with
+    the motor still, the robot stays put, while the level floor's rest state (pendulum straight down)
+    rolls away.  Independent of any OCP: the balanced attitude is found by a root-finder."""
+    import casadi as ca
+
+    from rollbot_oc.dynamics import imbalance
+    from rollbot_oc.rotations import quat_multiply
+
+    slope = PARAMS.replace(slope=np.radians(3.0), slope_dir=np.radians(30.0))
+    level_rest = to_reduced(rest_state(slope, heading=0.4))
+    q = level_rest[2:6]
+    tilt = ca.SX.sym("tilt", 2)  # small turns of the whole robot about the floor's x and y axes
+
+    turn_x = ca.vertcat(ca.cos(tilt[0] / 2), ca.sin(tilt[0] / 2), 0, 0)
+    turn_y = ca.vertcat(ca.cos(tilt[1] / 2), 0, ca.sin(tilt[1] / 2), 0)
+    turned = quat_multiply(turn_y, quat_multiply(turn_x, ca.DM(q)))
+    solve = ca.rootfinder("balance", "newton", ca.Function("r", [tilt], [imbalance(turned, slope.vector())]))
+    angles = np.array(solve(np.zeros(2))).ravel()
+    assert 0 < np.abs(angles).max() < 0.5
+    balanced = level_rest.copy()
+    balanced[2:6] = np.array(ca.Function("q", [tilt], [turned])(angles)).ravel()
+
+    def drift(z):
+        run = simulate(from_reduced(z), 2.0, params=slope, speed=lambda t: 0.0, stop_on_event=False)
+        return float(np.linalg.norm(run.position[:, -1] - run.position[:, 0]))
+
+    assert drift(balanced) < 1e-4  # m in 2 s
+    assert drift(level_rest) > 100 * max(drift(balanced), 1e-6)
 
 
 def test_orbit_entry_reaches_the_quasi_stable_orbit():

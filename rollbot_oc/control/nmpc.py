@@ -242,8 +242,8 @@ class NMPCSettings:
     replan_interval: float = 1.0
     plan_handover: float = 2.0
     plan_ahead: float = 0.25
-    plan_iteration_time: float = 0.025
-    plan_starts: int = 2
+    plan_iteration_time: float = 0.015
+    plan_starts: int = 3
     plan_guess_time: float = 0.5
     entry_times: tuple = (5.0, 7.0, 10.0)
     max_solve_time: float | None = None
@@ -251,7 +251,7 @@ class NMPCSettings:
     rti_step_time: float = 0.01
     ipopt_iteration_time: float = 0.01
     compiled: bool | None = None
-    plan: OCPSettings = field(default_factory=lambda: OCPSettings(N=40, accel_margin=0.85, expand=True))
+    plan: OCPSettings = field(default_factory=lambda: OCPSettings(N=40, accel_margin=0.85, compiled=True))
     entry: OCPSettings = field(default_factory=OCPSettings)
 
     def __post_init__(self):

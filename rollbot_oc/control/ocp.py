@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from rollbot_oc.codegen import compiled
 from rollbot_oc.errors import NotConverged, interruptible
 from rollbot_oc.dynamics import NW, NZ, from_reduced, imbalance, reduced_model, rk4, to_reduced
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, TILT, RollbotParams
@@ -100,6 +101,10 @@ class OCPSettings:
     expand : bool
         Build the NLP from scalar expressions (CasADi's ``expand``): slower to
         build once, faster to solve.
+    compiled : bool
+        Evaluate the stage constraints and their Jacobian as compiled C
+        (``rollbot_oc.codegen``, built once and cached on disk): the fastest
+        solves; without a C compiler, the same as ``expand``.
     """
 
     N: int = 60
@@ -116,6 +121,7 @@ class OCPSettings:
     hessian: str = "limited-memory"
     accel_margin: float = 1.0
     expand: bool = False
+    compiled: bool = False
 
 
 @functools.lru_cache(maxsize=None)
@@ -240,7 +246,13 @@ class _MinTimeOCP:
         self.params = params
         self.settings = s = settings or OCPSettings()
         N = s.N
-        stage = stage_function(s.substeps, s.friction_margin).map(N)
+        stage = stage_function(s.substeps, s.friction_margin)
+        self.compiled = False
+        if s.compiled:
+            fast = compiled(stage, jacobian=True)
+            self.compiled = fast is not stage
+            stage = fast
+        stage = stage.map(N)
         self.Z, self.U, self.Tv = ca.MX.sym("Z", NZ, N + 1), ca.MX.sym("U", 1, N), ca.MX.sym("T")
         self.z0, self.pp = ca.MX.sym("z0", NZ), ca.MX.sym("p", NP)
         gs = stage(self.Z[:, :-1], self.U, self.Z[:, 1:], self.Tv / N, self.pp)
@@ -267,7 +279,8 @@ class _MinTimeOCP:
         self.bounds = dict(lbx=lbx, ubx=ubx, lbg=np.concatenate(self.lbg), ubg=np.concatenate(self.ubg))
         nlp = {"x": x, "p": ca.vertcat(self.z0, self.pp, *self.extra_params), "f": self.cost, "g": ca.vertcat(*self.g)}
         opts = {"ipopt": {"max_iter": s.max_iter, "print_level": 0, "sb": "yes", "tol": 1e-6, "acceptable_tol": 1e-4,
-                          "hessian_approximation": s.hessian}, "print_time": False, "expand": s.expand}
+                          "hessian_approximation": s.hessian}, "print_time": False,
+                "expand": s.expand or (s.compiled and not self.compiled)}
         self.solver = ca.nlpsol(self.name, "ipopt", nlp, opts)
         self.n_extra = n - (iu + N + 1)
 

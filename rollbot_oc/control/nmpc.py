@@ -877,9 +877,10 @@ class NMPC:
         if seen >= k:
             return z
         p = self.estimator.params()
+        predicted = z
         for j in range(seen, k):
-            z = self.estimator.step(z, self.commands.get(j, 0.0), p)[0].copy()
-        return z
+            predicted = self.estimator.step(predicted, self.commands.get(j, 0.0), p)[0].copy()
+        return predicted if np.all(np.isfinite(predicted)) else z  # never act on a broken prediction
 
     def _watch_stop(self, obs: Observation) -> bool:
         """Feed the current stop's monitor (``StopRule``: near it and at rest for 0.5 s); True once reached."""
@@ -1012,7 +1013,8 @@ class NMPC:
             self._pid.omega_cmd = max(float(z[REDUCED.theta_dot]), 0.0)
             self._pid_fresh = False
         speed = self._pid(obs).speed
-        self.commands[k] = (speed - float(z[REDUCED.theta_dot])) / self.dt
+        limit = self.params.max_accel  # the plant's motor cannot follow faster either
+        self.commands[k] = float(np.clip((speed - float(z[REDUCED.theta_dot])) / self.dt, -limit, limit))
         self.commands.pop(k - 50, None)
         return Command(speed=speed)
 

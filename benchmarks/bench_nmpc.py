@@ -25,6 +25,10 @@ def closed_loop(label, problem, settings, duration=None):
           f"p95 {1e3 * m['solve_time_p95']:7.2f} ms  max {1e3 * m['solve_time_max']:7.2f} ms  "
           f"failed {m['failed_solves']}  late {m['late_solves']}  fallbacks {m['fallback_shifted']}/{m['fallback_pid']}"
           f"  completion {m['completion_time']}")
+    if m.get("plan_solves"):
+        print(f"  {'':34s} first command after {m['plan_time']:.2f} s; {m['plan_solves']} leg plans while moving, "
+              f"median {m['plan_solve_time_median']:.2f} s, max {m['plan_solve_time_max']:.2f} s, "
+              f"waited {m['plan_wait']:.1f} s at stops")
     return m
 
 
@@ -42,15 +46,16 @@ def main():
     print("\nMinimum-time rest-to-rest OCP, 1.2 m leg, N = 60 (median of 3)")
     params = RollbotParams()
     start = rest_state(params)
-    for hessian in ("limited-memory", "exact"):
-        ocp = RestToRest(params, OCPSettings(hessian=hessian))
+    for label, settings in (("limited-memory", OCPSettings()), ("exact", OCPSettings(hessian="exact")),
+                            ("l-m, compiled", OCPSettings(compiled=True))):
+        ocp = RestToRest(params, settings)
         times, iters = [], []
         for _ in range(3):
             t0 = time.perf_counter()
             plan = ocp.solve(start, [0.0, 1.2])
             times.append(time.perf_counter() - t0)
             iters.append(plan.iterations)
-        print(f"  IPOPT {hessian:15s} median {statistics.median(times):6.2f} s  iterations {iters[0]}  "
+        print(f"  IPOPT {label:15s} median {statistics.median(times):6.2f} s  iterations {iters[0]}  "
               f"T = {plan.T:.2f} s")
 
 

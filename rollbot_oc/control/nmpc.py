@@ -2,12 +2,16 @@
 
 Structure (do-mpc's separation: model, controller, simulator over one model):
 
-* **Plans** (``control.ocp``): before the run, over the full dynamics on a
-  level floor: for stops, minimum-time rest-to-rest legs, each then re-timed
-  ``plan_slack`` (10 %) slower onto the NMPC's own 0.1 s grid with the least
-  motor effort; for circles, an entry onto the quasi-stable orbit of the
-  target circle in a fixed time (5 s, else 7 or 10 s) with the least effort,
-  then the orbit itself.
+* **Plans** (``control.ocp``), computed as the robot moves: for stops, the
+  first leg starts at once on its quasi-stable guess (a simulation of the
+  model, a fraction of a second) and a minimum-time leg refined from where the
+  guess will be ``plan_handover`` later takes over then; every later leg is
+  planned during the one before (the fastest of ``plan_starts`` starts, from
+  the rest state the leg ends in, on the tilt estimated by then) and is used
+  only once its modelled compute time has passed; legs end balanced on the
+  estimated floor.  For circles, before the run: an entry onto the
+  quasi-stable orbit of the target circle in a fixed time (5 s, else 7 or
+  10 s) with the least effort, then the orbit itself.
 * **Tracking NMPC**: every ``h = 0.1`` s it solves a multiple-shooting
   problem over ``N = 30`` intervals (3 s, about half a revolution period and
   half the 7 s recovery time) that keeps the predicted reduced state near the

@@ -10,10 +10,9 @@ cause (the campaign's ``summary.md``), and keeps the campaign's folder
 (``--out``), so that an interrupted run carries on where it stopped and a
 run with more controllers reuses the rows already computed.
 
-The NMPC plans offline before each run (a minute or more per course on a
-2-core machine) and the bound is an OCP per leg: the full campaign is meant
-for a cluster (``--scheduler``) or a night; ``--controllers pid`` runs the
-baseline alone.
+The NMPC plans each leg as the robot moves (three IPOPT starts per leg) and
+the bound is five starts per leg: the full campaign is meant for a cluster
+(``--scheduler``) or a night; ``--controllers pid`` runs the baseline alone.
 
 Run: .venv/bin/python benchmarks/bench_robustness.py [--courses 100] [--controllers nmpc pid bound]
      [--first 0] [--workers N | --scheduler ADDR] [--out out/bench_robustness] [--result FILE]

@@ -217,8 +217,8 @@ class NMPCSettings:
         (``rollbot_oc.codegen``); ``None`` uses it when a C compiler exists.
     plan : OCPSettings
         Settings of the minimum-time legs (a coarser grid than the offline
-        default, scalar expressions, and 15 % of the motor's acceleration left
-        to the feedback).
+        default, compiled stage functions, and 15 % of the motor's acceleration
+        left to the feedback).
     entry : OCPSettings
         Settings of a circle's entry onto its orbit (its ``N`` follows the entry time).
     """
@@ -727,22 +727,21 @@ class NMPC:
             # the refinement runs while the robot moves (in simulation: it is used after its modelled time)
             self._launch(0, 0.0, handover, guess.state(handover), guess.tail(handover, self.settings.plan.N))
             return self.reference
-        else:
-            # The minimum-time entry takes hundreds of IPOPT iterations; a fixed entry time a little
-            # above it, with the least effort, converges in a fraction of the time.
-            settings = self.settings.entry
-            for duration in self.settings.entry_times:
-                intervals = int(round(duration / self.settings.h))
-                entry = _orbit_entry(self.mission.radius, level, replace(settings, N=intervals))
-                try:
-                    plan = entry.solve(x0, self.mission.centre, duration=duration)
-                    break
-                except SolveFailed:
-                    if duration == self.settings.entry_times[-1]:
-                        raise
-            orbit = {"qs": entry.qs_reduced, "centre": self.mission.centre, "phase": plan.extra["phase"],
-                     "Omega": entry.quasi.Omega}
-            self.reference = Reference([(plan, {})], orbit)
+        # The minimum-time entry takes hundreds of IPOPT iterations; a fixed entry time a little
+        # above it, with the least effort, converges in a fraction of the time.
+        settings = self.settings.entry
+        for duration in self.settings.entry_times:
+            intervals = int(round(duration / self.settings.h))
+            entry = _orbit_entry(self.mission.radius, level, replace(settings, N=intervals))
+            try:
+                plan = entry.solve(x0, self.mission.centre, duration=duration)
+                break
+            except SolveFailed:
+                if duration == self.settings.entry_times[-1]:
+                    raise
+        orbit = {"qs": entry.qs_reduced, "centre": self.mission.centre, "phase": plan.extra["phase"],
+                 "Omega": entry.quasi.Omega}
+        self.reference = Reference([(plan, {})], orbit)
         self.plan_time = time.perf_counter() - start
         return self.reference
 
@@ -820,7 +819,8 @@ class NMPC:
             self._pending = {}  # legs being planned, by segment
             self._anchor = None
             self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0, "late": 0,
-                        "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [], "plan_failures": 0, "plan_wait": 0.0}
+                        "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [], "plan_failures": 0,
+                        "plan_wait": 0.0}
         self.k = 0
         self.warm = None
         self.current = None  # (U, index of the interval in use)

@@ -149,6 +149,14 @@ def stage_function(substeps: int, friction_margin: float) -> ca.Function:
                        ["z", "u", "z_next", "h", "p"], ["g"])
 
 
+@functools.lru_cache(maxsize=None)
+def _compiled_stage(substeps: int, friction_margin: float) -> ca.Function | None:
+    """``stage_function`` and its AD Jacobian as compiled C (loaded once per process), or None without a compiler."""
+    stage = stage_function(substeps, friction_margin)
+    fast = compiled(stage, jacobian=True)
+    return fast if fast is not stage else None
+
+
 def orbit_state(qs_reduced, centre, phase):
     """The reduced quasi-stable state ``qs_reduced`` (revolving about the origin) turned by ``phase`` about ``centre``.
 
@@ -212,10 +220,7 @@ class Plan:
 
     def resample(self, N: int) -> "Plan":
         """The same trajectory on ``N`` equal intervals (states interpolated, accelerations at interval midpoints)."""
-        t = np.linspace(0.0, self.T, N + 1)
-        u = np.array([self.accel(tm) for tm in 0.5 * (t[1:] + t[:-1])])
-        return Plan(t, self.state(t), u, self.T, self.status, self.success, self.iterations, self.solve_time,
-                    dict(self.extra))
+        return self.tail(0.0, N)
 
     def tail(self, t0: float, N: int) -> "Plan":
         """The rest of the trajectory from time ``t0`` (s) on, on ``N`` equal intervals, its time from 0."""
@@ -246,13 +251,9 @@ class _MinTimeOCP:
         self.params = params
         self.settings = s = settings or OCPSettings()
         N = s.N
-        stage = stage_function(s.substeps, s.friction_margin)
-        self.compiled = False
-        if s.compiled:
-            fast = compiled(stage, jacobian=True)
-            self.compiled = fast is not stage
-            stage = fast
-        stage = stage.map(N)
+        stage = _compiled_stage(s.substeps, s.friction_margin) if s.compiled else None
+        self.compiled = stage is not None
+        stage = (stage or stage_function(s.substeps, s.friction_margin)).map(N)
         self.Z, self.U, self.Tv = ca.MX.sym("Z", NZ, N + 1), ca.MX.sym("U", 1, N), ca.MX.sym("T")
         self.z0, self.pp = ca.MX.sym("z0", NZ), ca.MX.sym("p", NP)
         gs = stage(self.Z[:, :-1], self.U, self.Z[:, 1:], self.Tv / N, self.pp)

@@ -170,3 +170,41 @@ def test_recovers_from_a_spin_and_a_push():
     m = run_problem(problem, "nmpc", kicks=kicks).metrics
     assert m["completed"] and max(m["stop_errors"]) <= 0.07 and m["stop_replans"] >= 1
     check_plant_limits(m)
+
+
+def test_a_run_of_failed_solves_on_a_leg_brakes_and_replans_from_rest(monkeypatch):
+    """Ten solves in a row fail mid-leg: the motor is ramped to a stop, the robot is brought to rest and
+    gets a new leg from there; both stops are still reached at rest."""
+    calls = {"n": 0}
+    solve = RTISolver.solve
+
+    def flaky(self, *args, **kwargs):
+        calls["n"] += 1
+        x, lam, status, ok, seconds = solve(self, *args, **kwargs)
+        return (x, lam, "injected failure", False, seconds) if 30 <= calls["n"] < 40 else (x, lam, status, ok, seconds)
+
+    monkeypatch.setattr(RTISolver, "solve", flaky)
+    base = load_problem(PROBLEMS / "n_shape.toml")
+    problem = replace(base, mission=Waypoints(tuple(base.mission.points[:2])), duration=60.0)
+    m = run_problem(problem, "nmpc").metrics
+    assert m["fallback_brake"] >= 1 and m["fallback_pid"] == 0 and m["brakes"] >= 1
+    assert m["completed"] and max(m["stop_errors"]) <= 0.07
+    check_plant_limits(m)
+
+
+def test_a_state_no_command_keeps_within_the_limits_gets_a_relaxed_solve():
+    """The pendulum swung 60 deg and a torque margin of 1 %: no acceleration within the motor's limit keeps the
+    torque that small, so the QP is infeasible; it is solved once more without the path constraints, and the
+    status says so."""
+    params = RollbotParams()
+    settings = NMPCSettings(torque_margin=0.01)
+    solver = RTISolver(params, settings, settings.waypoint_weights)
+    z0 = np.zeros(10)
+    z0[2], z0[3] = math.cos(math.radians(30)), math.sin(math.radians(30))  # 60 deg about the motor axis
+    Zr = np.tile(z0[:, None], (1, settings.N + 1))
+    x, _, status, ok, _ = solver.solve(z0, Zr, np.zeros(settings.N), params.vector())
+    assert ok and status.startswith("relaxed (")
+    _, U = solver.split(x)
+    assert np.all(np.abs(U) <= params.max_accel + 1e-9)
+    z0[2], z0[3] = 1.0, 0.0  # hanging: the same solver solves the full problem
+    assert solver.solve(z0, Zr * 0 + z0[:, None], np.zeros(settings.N), params.vector())[2] == "success"

@@ -4,12 +4,17 @@ Structure (do-mpc's separation: model, controller, simulator over one model):
 
 * **Plans** (``control.ocp``), computed as the robot moves: for stops, the
   first leg starts at once on its quasi-stable guess (a simulation of the
-  model, a fraction of a second) and a minimum-time leg refined from where the
-  guess will be ``plan_handover`` later takes over then; every later leg is
-  planned during the one before (the fastest of ``plan_starts`` starts, from
-  the rest state the leg ends in, on the tilt estimated by then) and is used
-  only once its modelled compute time has passed; legs end balanced on the
-  estimated floor.  For circles, before the run: an entry onto the
+  model, a fraction of a second); once the tilt estimate has settled
+  (``tilt_settle``) a minimum-time leg is refined from where the guess will be
+  ``plan_handover`` later, and takes over there if it is ready by then (else
+  it is planned again from further along).  Every later leg is planned
+  during the one before (the fastest of ``plan_starts`` starts, from the rest
+  state the leg ends in, on the tilt estimated by then) and is used only once
+  its modelled compute time has passed; legs end balanced on the estimated
+  floor.
+* **Recovery**: a robot pushed off its plan is first brought to rest where
+  it is (the tracking NMPC with ``brake_weights``: motion only), then gets a
+  new leg from there, as at the start.  For circles, before the run: an entry onto the
   quasi-stable orbit of the target circle in a fixed time (5 s, else 7 or
   10 s) with the least effort, then the orbit itself.
 * **Tracking NMPC**: every ``h = 0.1`` s it solves a multiple-shooting
@@ -26,10 +31,14 @@ Structure (do-mpc's separation: model, controller, simulator over one model):
   predicted forward over the commands applied since.
 * **Warm start**: the previous solution shifted by one interval (primal and,
   for IPOPT, dual values).
-* **Never crash the loop**: a failed or late solve (longer than ``h``) falls
-  back to the shifted previous solution; after ``max_failures`` consecutive
-  failures the paper's PID takes over for ``pid_time`` seconds.  Every solve's
-  status and time, and every fallback, is counted in ``report()``.
+* **Never crash the loop**: a QP made infeasible by the state (no command
+  keeps the torque or contact limits) is solved once more without the path
+  constraints (status ``relaxed (...)``); a failed or late solve (longer than
+  ``h``) falls back to the shifted previous solution; after ``max_failures``
+  consecutive failures the motor's speed is ramped to zero and the robot is
+  brought to rest (``fallback = "brake"``, stops) or the paper's PID takes
+  over for ``pid_time`` seconds (``"pid"``, circles).  Every solve's status
+  and time, and every fallback, is counted in ``report()``.
 
 Measured (what a real Rollbot would know): the pose from motion capture
 (position, orientation), the shell angular velocity from a gyroscope and the
@@ -53,7 +62,7 @@ import numpy as np
 
 from rollbot_oc.control.missions import Circle, StopMonitor, Waypoints
 from rollbot_oc.control.ocp import (
-    NP, OCPSettings, OrbitEntry, RestToRest, SolveFailed, interval_function, quasi_stable_guess, stage_function,
+    NP, OCPSettings, OrbitEntry, Plan, RestToRest, SolveFailed, interval_function, quasi_stable_guess, stage_function,
 )
 from rollbot_oc.codegen import compiled, compiler
 from rollbot_oc.errors import interruptible
@@ -110,6 +119,11 @@ class TrackingWeights:
         return cls(position=200.0, terminal=20.0, omega=40.0, speed=2.0, accel=0.5)
 
     @classmethod
+    def for_braking(cls) -> "TrackingWeights":
+        """Recovery: bring the robot to rest wherever that happens (motion only, no position or attitude)."""
+        return cls(position=0.0, attitude=0.0, omega=40.0, speed=1.0, accel=0.05, terminal=20.0)
+
+    @classmethod
     def for_circles(cls) -> "TrackingWeights":
         """Circles: the distance from the circle matters, not the point on it (the reference is re-phased)."""
         return cls(position=400.0, radial=4000.0, terminal=5.0)
@@ -151,6 +165,12 @@ class NMPCSettings:
         Largest tangential force as a fraction of ``mu`` times the normal force.
     max_failures : int
         Consecutive failed or late solves before the PID takes over.
+    fallback : {"brake", "pid"}
+        What takes over after ``max_failures`` failed solves on a course of
+        stops: ``"brake"`` ramps the motor to a stop (the robot comes to rest
+        as a ball with a hanging mass, then gets a new leg from there),
+        ``"pid"`` the paper's PID towards the current stop for ``pid_time``.
+        Circles always fall back to the PID.
     pid_time : float
         How long the PID keeps control after taking over, s.
     estimate_tilt : bool
@@ -159,14 +179,31 @@ class NMPCSettings:
         Random-walk rate of the tilt estimate, 1/sqrt(s).
     gyro_sigma : float
         Assumed one-step prediction error of the angular velocity, rad/s.
+    tilt_model_error : float
+        Assumed relative error of the model's one-step change of the angular
+        velocity (``TiltEstimator.model_error``).
     hold_time : float
-        How long after a leg's plan ends a robot at rest away from its stop
-        waits before it gets a new leg to the same stop, s (it never moves on
-        from a stop it has not reached).
+        How long after a leg's plan ends a robot nearly at rest (see
+        ``recover_speed``) outside its stop's tolerance waits before it gets a
+        new leg to the same stop, s (it never moves on from a stop it has not
+        reached).
     replan_distance, replan_interval : float
         A robot pushed more than ``replan_distance`` (m) off its plan gets a
         new leg to its stop from where it is, at most once per
         ``replan_interval`` (s).
+    brake_weights : TrackingWeights
+        A robot pushed off its plan is first brought to rest: the NMPC tracks
+        rest where the robot is with these weights (motion only, no position;
+        ``TrackingWeights.for_braking``).  Its new leg is planned once it is at
+        rest (shell-centre speed below ``recover_speed``, m/s, driving speed
+        below ``recover_drive``, rad/s) or after ``brake_wait`` s: a leg planned
+        from rest converges, one from a tumbling robot often does not.
+    recover_speed, recover_drive, brake_wait : float
+        See ``brake_weights``.
+    brake_accel : float
+        If the braking solves fail (``max_failures`` in a row), the motor's
+        speed is ramped to zero at this rate, rad/s^2, for a moment before
+        the NMPC tries again.
     replan_angle : float
         A leg planned ahead is followed only if the robot's attitude at the
         stop is within this angle of the one it was planned from (and its
@@ -184,6 +221,10 @@ class NMPCSettings:
         once on the quasi-stable guess (a full-model simulation); the
         minimum-time leg refined from it takes over this long after, from where
         the guess then is, s.
+    tilt_settle : float
+        The first leg's refinement is planned this long after the start, once
+        the floor tilt estimate has settled (a plan on the level floor misses
+        a slope's pull), s.
     plan_ahead : float
         The next leg is planned (from the rest state the current leg ends in,
         on the tilt estimated by then) when this fraction of the current leg
@@ -234,18 +275,26 @@ class NMPCSettings:
     normal_margin: float = 0.1
     friction_margin: float = 0.95
     max_failures: int = 3
+    fallback: str = "brake"
     pid_time: float = 2.0
     estimate_tilt: bool = True
     tilt_process_noise: float = 0.01
     gyro_sigma: float = 2e-3
-    hold_time: float = 3.0
+    tilt_model_error: float = 0.1
+    hold_time: float = 1.0
     hold_radius: float = 0.05
     replan_distance: float = 0.15
     replan_angle: float = 0.2
     finish_hold: float = 1.0
     replan_interval: float = 1.0
+    brake_weights: "TrackingWeights" = None
+    brake_accel: float = 15.0
+    brake_wait: float = 4.0
+    recover_speed: float = 0.02
+    recover_drive: float = 0.3
     plan_handover: float = 2.0
-    plan_ahead: float = 0.25
+    tilt_settle: float = 0.3
+    plan_ahead: float = 0.0
     plan_iteration_time: float = 0.015
     plan_starts: int = 3
     plan_guess_time: float = 0.5
@@ -265,6 +314,10 @@ class NMPCSettings:
             object.__setattr__(self, "circle_weights", TrackingWeights.for_circles())
         if self.hold_weights is None:
             object.__setattr__(self, "hold_weights", TrackingWeights.for_holding())
+        if self.brake_weights is None:
+            object.__setattr__(self, "brake_weights", TrackingWeights.for_braking())
+        if self.fallback not in ("brake", "pid"):
+            raise ValueError(f"NMPC fallback = {self.fallback!r}; valid are 'brake', 'pid'")
         if self.solver not in ("ipopt", "rti"):
             raise ValueError(f"NMPC solver = {self.solver!r}; valid are 'ipopt', 'rti'")
         if not (isinstance(self.N, int) and self.N >= 2):
@@ -295,6 +348,7 @@ class TrackingSolver:
         self.lbg = np.concatenate([np.zeros(NZ), np.tile(np.concatenate([np.zeros(NZ), [-tau, s.normal_margin * weight,
                                                                                           0.0]]), N)])
         self.ubg = np.concatenate([np.zeros(NZ), np.tile(np.concatenate([np.zeros(NZ), [tau, np.inf, np.inf]]), N)])
+        self._path_rows = np.concatenate([np.zeros(NZ, bool), np.tile(np.arange(13) >= NZ, N)])
         # least-squares tracking residuals (Gauss-Newton friendly); the square roots of the weights are
         # a parameter of each solve
         self.diag = weights.diagonal(N)
@@ -419,6 +473,7 @@ class RTISolver:
         stage_lower = np.concatenate([np.zeros(NZ), [-tau, s.normal_margin, 0.0]])
         self.lbg = np.concatenate([np.zeros(NZ), np.tile(stage_lower, N)])
         self.ubg = np.concatenate([np.zeros(NZ), np.tile(np.concatenate([np.zeros(NZ), [tau, np.inf, np.inf]]), N)])
+        self._path_rows = np.concatenate([np.zeros(NZ, bool), np.tile(np.arange(13) >= NZ, N)])
         self.lbx, self.ubx = np.full(self.n_x, -np.inf), np.full(self.n_x, np.inf)
         speed = 0.98 * params.max_speed
         self.lbx[9:NZ * (N + 1):NZ], self.ubx[9:NZ * (N + 1):NZ] = -speed, speed
@@ -502,9 +557,14 @@ class RTISolver:
             sol, ok = self._qp(args, lam_x, lam_g)
             stats = self.qp.stats() if sol is not None else {"return_status": "QP error"}
             status = str(stats.get("return_status", "success" if ok else "failed"))
+            if not ok:  # e.g. a state no command keeps within the torque or contact limits: without them
+                args.update(lba=np.where(self._path_rows, -np.inf, args["lba"]),
+                            uba=np.where(self._path_rows, np.inf, args["uba"]))
+                sol, ok = self._qp(args, None, None)
+                status = f"relaxed ({status})" if ok else status
             if not ok:
                 break
-            x = x + np.array(sol["x"]).ravel()
+            x = np.clip(x + np.array(sol["x"]).ravel(), self.lbx, self.ubx)  # qrqp may overstep a bound a little
             lam_x, lam_g = np.array(sol["lam_x"]).ravel(), np.array(sol["lam_a"]).ravel()
         seconds = time.perf_counter() - start
         return x, (lam_x, lam_g), status, ok and bool(np.all(np.isfinite(x))), seconds
@@ -564,13 +624,20 @@ class TiltEstimator:
         Random-walk rate of the tilt, 1/sqrt(s).
     gyro_sigma : float
         One-step prediction error of the angular velocity, rad/s.
+    model_error : float
+        Relative error of the model's predicted change of the angular velocity
+        (masses, damping): in motion the prediction error grows with the change,
+        so the filter learns the floor at rest and near it, not the model's
+        errors in hard manoeuvres.
     """
 
-    def __init__(self, params: RollbotParams, dt: float, process_noise: float = 0.01, gyro_sigma: float = 2e-3):
+    def __init__(self, params: RollbotParams, dt: float, process_noise: float = 0.01, gyro_sigma: float = 2e-3,
+                 model_error: float = 0.1):
         self.p = params.vector()
         self.dt = dt
         self.q = process_noise**2 * dt
         self.r = gyro_sigma**2
+        self.model_error = model_error
         self.step = FastFunction(_one_step(1, dt))
         self.reset()
 
@@ -589,7 +656,8 @@ class TiltEstimator:
         if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(H))):
             return self.tilt  # nothing to learn from a broken prediction
         self.P = self.P + np.eye(2) * self.q
-        S = H @ self.P @ H.T + np.eye(3) * self.r
+        change = float(np.linalg.norm(zn[6:9] - np.asarray(z_prev)[6:9]))
+        S = H @ self.P @ H.T + np.eye(3) * (self.r + (self.model_error * change) ** 2)
         K = np.linalg.solve(S, H @ self.P).T  # S is symmetric positive definite (r > 0)
         self.tilt = np.clip(self.tilt + K @ residual, -0.5, 0.5)
         self.P = (np.eye(2) - K @ H) @ self.P
@@ -692,7 +760,9 @@ class NMPC:
         solver = TrackingSolver if s.solver == "ipopt" else RTISolver
         self.solver = solver(self.params, s, self.weights)
         self._hold_diag = s.hold_weights.diagonal(s.N)
-        self.estimator = TiltEstimator(self.params, dt, s.tilt_process_noise, s.gyro_sigma)
+        self._brake_diag = s.brake_weights.diagonal(s.N)
+        self.estimator = TiltEstimator(self.params, dt, s.tilt_process_noise, s.gyro_sigma,
+                                       s.tilt_model_error)
         # the legs' planner, built once (its floor tilt is set per plan from the estimate)
         self._legs = _rest_to_rest(self.params.replace(slope=0.0), s.plan) if isinstance(mission, Waypoints) else None
         self.map = None  # set with the plans (for centre-of-curvature plots)
@@ -722,10 +792,8 @@ class NMPC:
         self.map = RadiusMap(level)
         if isinstance(self.mission, Waypoints):
             self.reference = Reference([None] * len(self.mission.stops))
-            guess, handover = self._follow_guess(to_reduced(x0), 0.0)
+            self._follow_guess(to_reduced(x0), 0.0)  # refined while the robot moves (``_refine``)
             self.plan_time = time.perf_counter() - start  # the first command can be given now
-            # the refinement runs while the robot moves (in simulation: it is used after its modelled time)
-            self._launch(0, 0.0, handover, guess.state(handover), guess.tail(handover, self.settings.plan.N))
             return self.reference
         # The minimum-time entry takes hundreds of IPOPT iterations; a fixed entry time a little
         # above it, with the least effort, converges in a fraction of the time.
@@ -748,20 +816,28 @@ class NMPC:
     # -- legs: planned while the robot moves --------------------------------------------------------
     def _provisional(self, z, t_now: float):
         """Start the current leg at once on its quasi-stable guess from ``z`` (a simulation of the model),
-        and plan the minimum-time leg from where the guess will be ``plan_handover`` s later."""
-        guess, handover = self._follow_guess(z, t_now)
-        self._launch(self.segment, t_now, t_now + handover, guess.state(handover),
-                     guess.tail(handover, self.settings.plan.N))
+        refined as it goes (``_refine``)."""
+        self._follow_guess(z, t_now)
 
     def _follow_guess(self, z, t_now: float):
-        """Make the current leg the quasi-stable guess from ``z``; ``(guess, handover time (s))``."""
+        """Make the current leg the quasi-stable guess from ``z``, to be refined ``tilt_settle`` s later."""
         s, stop = self.settings, self.mission.stops[self.segment]
         guess = quasi_stable_guess(z, np.asarray(stop, float), self.params.replace(slope=0.0), s.plan.N)
         guess.extra = {"goal": list(map(float, stop)), "provisional": True}
         self.reference.segments[self.segment] = (guess, {"stop": stop})
         self.segment_start = t_now
         self._anchor = None
-        return guess, min(s.plan_handover, guess.T)
+        self._refine_at = t_now + s.tilt_settle
+
+    def _refine(self, t_now: float):
+        """Plan the minimum-time leg from where the guess followed now will be ``plan_handover`` s later
+        (if the guess lasts that long); it takes over there if it is ready by then."""
+        self._refine_at = None
+        guess = self.reference.segments[self.segment][0]
+        handover = t_now - self.segment_start + self.settings.plan_handover
+        if handover < guess.T - self.settings.plan_handover:
+            self._launch(self.segment, t_now, self.segment_start + handover, guess.state(handover),
+                         guess.tail(handover, self.settings.plan.N))
 
     def _launch(self, segment: int, t_now: float, t_start, z_start, guess=None):
         """Plan leg ``segment`` from ``z_start`` on the estimated floor; it may be used once its modelled
@@ -805,6 +881,12 @@ class NMPC:
         del self._pending[self.segment]
         if pending["plan"] is None:  # the plan failed: the robot goes on with what it follows
             return False
+        if pending["start"] is not None and pending["ready"] > pending["start"] + 1e-9:
+            # ready after the moment it was planned from: the robot has gone on without it
+            self.log["plan_late"] += 1
+            if self.reference.segments[self.segment][0].extra.get("provisional"):
+                self._refine_at = t_now  # once more, from further along the guess
+            return False
         self.reference.segments[self.segment] = (pending["plan"], {"stop": self.mission.stops[self.segment]})
         self.segment_start = start
         self._anchor = None
@@ -817,10 +899,13 @@ class NMPC:
             self.reference = None
             self.segment, self.segment_start = 0, 0.0
             self._pending = {}  # legs being planned, by segment
+            self._refine_at = None  # when to refine the quasi-stable guess followed
+            self._braking_since = None  # when the robot began to be brought to rest
             self._anchor = None
-            self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0, "late": 0,
+            self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0, "fallback_brake": 0, "late": 0,
                         "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [], "plan_failures": 0,
-                        "plan_wait": 0.0}
+                        "plan_wait": 0.0, "brakes": 0,
+                        "plan_late": 0}
         self.k = 0
         self.warm = None
         self.current = None  # (U, index of the interval in use)
@@ -828,6 +913,7 @@ class NMPC:
         self.previous = None
         self.failures = 0
         self.pid_until = -1.0
+        self._ramp = None  # (start time, s; driving speed, rad/s) of the fallback's speed ramp
         self._pid_fresh = True
         self.stops: list[dict] = []
         self._monitor = None
@@ -857,11 +943,11 @@ class NMPC:
         if self._done:
             return self._issue(k, 0.0)
         if t_now < self.pid_until:
-            return self._pid_command(k, obs, z)
+            return self._fallback_command(k, obs, z)
         if k % self.every == 0 or self.current is None:
             self._replan(z, t_now, k)
-            if self.current is None:  # the PID took over
-                return self._pid_command(k, obs, z)
+            if self.current is None:  # the fallback took over
+                return self._fallback_command(k, obs, z)
         U, k_solved = self.current
         return self._issue(k, float(U[min((k - k_solved) // self.every, len(U) - 1)]))
 
@@ -905,11 +991,15 @@ class NMPC:
         if self._finished_at is not None:  # the last stop is reached: hold there a little longer
             self._done = t_now >= self._finished_at + s.finish_hold - 1e-9
             return
-        self._take_pending(t_now)
+        if self._refine_at is not None and t_now >= self._refine_at - 1e-9:
+            self._refine(t_now)
+        if self._braking_since is None:
+            self._take_pending(t_now)
         plan, info = self.reference.segments[i]
         local = t_now - self.segment_start
         if (i + 1 < len(self.mission.stops) and self.reference.segments[i + 1] is None and i + 1 not in self._pending
-                and not plan.extra.get("provisional") and i not in self._pending and local >= s.plan_ahead * plan.T):
+                and not plan.extra.get("provisional") and self._braking_since is None and i not in self._pending
+                and local >= s.plan_ahead * plan.T):
             end = plan.z[:, -1].copy()
             end[REDUCED.velocity] = 0.0
             self._launch(i + 1, t_now, None, end)
@@ -922,28 +1012,78 @@ class NMPC:
             if i + 1 >= len(self.mission.stops):
                 self._finished_at = t_now
                 return
+            self._pending.pop(i, None)
             self.segment += 1
             self.warm, self.current, self._monitor = None, None, None
+            self._refine_at = self._braking_since = None
             if not (self._fits(self._pending.get(self.segment), z) and self._take_pending(t_now)):
                 self._pending.pop(self.segment, None)  # nothing (or nothing that fits) planned ahead: from here
+                self._brake(z, t_now, recovery=False)
+            return
+        at_rest = (self.params.R * float(np.linalg.norm(z[REDUCED.omega])) < s.recover_speed
+                   and abs(float(z[REDUCED.theta_dot])) < s.recover_drive)
+        if self._braking_since is not None:  # recovering: a new leg from rest, planned while it holds
+            if self._take_pending(t_now):  # (``_take_pending`` dropped a failed plan: from its guess)
+                self._braking_since = None
+            elif i in self._pending:
+                return
+            elif self._rest_plan:
+                self._braking_since = None
                 self._provisional(z, t_now)
+            elif at_rest or t_now - self._braking_since >= s.brake_wait - 1e-9:
+                start = z.copy()
+                start[REDUCED.velocity] = 0.0
+                self._launch(i, t_now, None, start)
+                self._rest_plan = True
+                return
+            else:
+                return
+            self.warm, self.current = None, None
             return
         anchor = self._anchor if self._anchor is not None else plan.state(local)[REDUCED.position]
         off_course = np.linalg.norm(z[REDUCED.position] - anchor) > s.replan_distance
-        settled_away = local >= plan.T + s.hold_time and self._monitor is not None and self._monitor.settled_away
+        away = np.linalg.norm(z[REDUCED.position] - np.asarray(info["stop"], float)) > self._rule.tolerance
+        settled_away = local >= plan.T + s.hold_time and at_rest and away
         if settled_away or (off_course and local >= s.replan_interval):
-            # never move on from here: a new leg to the same stop from where the robot is (the next leg,
-            # planned from where this one was to end, is planned again)
+            # never move on from here: a new leg to the same stop from where the robot is, once it is at
+            # rest (the next leg, planned from where this one was to end, is planned again)
             self._pending.pop(i, None)
             self._pending.pop(i + 1, None)
-            self._provisional(z, t_now)
+            self._brake(z, t_now)  # (at rest already if settled away: planned from there at once)
             self.warm, self.current = None, None
             self.log["replans"] += 1
 
+    def _brake(self, z, t_now: float, recovery: bool = True):
+        """Bring the robot to rest where it is (``brake_weights``) and hold it there while a new leg is
+        planned from rest, the fastest of ``plan_starts`` (``_advance_mission``; if that fails, the
+        quasi-stable guess from where it is).  The stop's planned legs are dropped.  ``recovery``: counted
+        in ``brakes`` (not for a leg begun at a stop the planned-ahead leg does not fit)."""
+        self._pending.pop(self.segment, None)
+        self._pending.pop(self.segment + 1, None)
+        if self.reference.segments[self.segment] is None:  # a new stop: rest where it is until its leg
+            rest = np.tile(np.asarray(z, float)[:, None], (1, 2))
+            rest[REDUCED.velocity] = 0.0
+            hold = Plan(np.array([0.0, self.settings.h]), rest, np.zeros(1), self.settings.h, "hold", True, 0, 0.0,
+                        {"provisional": True})
+            self.reference.segments[self.segment] = (hold, {"stop": self.mission.stops[self.segment]})
+            self.segment_start = t_now
+        self._braking_since = t_now
+        self._rest_plan = False  # whether the new leg from rest has been launched
+        self._anchor = None
+        self._refine_at = None
+        self.log["brakes"] += recovery
+
     def _replan(self, z, t_now: float, k: int):
         s = self.settings
-        Zr, Ur = self.reference.sample(self.segment, t_now - self.segment_start, s.h, s.N, position=z[0:2])
-        self._settle(Zr, t_now, z)
+        diag = None
+        if self._braking_since is not None:  # rest where the robot is: only its motion counts
+            Zr, Ur, diag = np.tile(z[:, None], (1, s.N + 1)), np.zeros(s.N), self._brake_diag
+            Zr[REDUCED.velocity] = 0.0
+        else:
+            Zr, Ur = self.reference.sample(self.segment, t_now - self.segment_start, s.h, s.N, position=z[0:2])
+            self._settle(Zr, t_now, z)
+            if self._anchor is not None:  # holding at a stop
+                diag = self._hold_diag
         # q and -q are the same attitude: give the (continuous) reference the measurement's sign
         if float(Zr[2:6, 0] @ z[2:6]) < 0:
             Zr[2:6] *= -1.0
@@ -951,7 +1091,6 @@ class NMPC:
         if isinstance(self.mission, Circle):  # the distance from the circle counts once on the orbit
             on_orbit = (t_now - self.segment_start + s.h * np.arange(s.N + 1)) > self.reference.segments[0][0].T
             circle = (self.mission.centre, self.mission.radius, self.weights.radial * on_orbit)
-        diag = self._hold_diag if self._anchor is not None else None  # holding at a stop
         x, lam, status, ok, seconds = self.solver.solve(z, Zr, Ur, self.estimator.params(), self.warm, circle, diag)
         compute = seconds if s.realtime else self.solver.modelled_time()
         late = compute > (s.h if s.max_solve_time is None else s.max_solve_time)
@@ -969,9 +1108,20 @@ class NMPC:
         if self.current is not None and self.failures < s.max_failures:
             self.log["fallback_shifted"] += 1  # keep following the previous solution (its index moves on)
             return
-        self.log["fallback_pid"] += 1
-        self.pid_until = t_now + s.pid_time
         self.warm, self.current, self.failures = None, None, 0
+        if isinstance(self.mission, Waypoints) and s.fallback == "brake":
+            # the motor's speed ramped to zero for a moment, then the NMPC brings the robot to rest and
+            # plans a new leg from there (``_advance_mission``)
+            self.log["fallback_brake"] += 1
+            if self._braking_since is None:
+                self._brake(z, t_now)
+            speed = float(z[REDUCED.theta_dot])
+            self._ramp = (t_now, speed)
+            self.pid_until = t_now + abs(speed) / s.brake_accel + s.h
+            return
+        self.log["fallback_pid"] += 1
+        self._ramp = None
+        self.pid_until = t_now + s.pid_time
         self._pid_fresh = True
 
     def _settle(self, Zr, t_now: float, z):
@@ -997,6 +1147,18 @@ class NMPC:
         Zs = np.hstack([Z[:, 1:], Z[:, -1:]])
         Us = np.concatenate([U[1:], U[-1:]])
         return np.concatenate([Zs.T.ravel(), Us])
+
+    def _fallback_command(self, k: int, obs: Observation, z) -> Command:
+        """After ``max_failures`` failed solves: the motor's speed ramped to zero (``fallback = "brake"``),
+        or the PID (``"pid"``, and circles), as a speed command."""
+        if self._ramp is None:
+            return self._pid_command(k, obs, z)
+        t0, speed0 = self._ramp
+        speed = math.copysign(max(0.0, abs(speed0) - self.settings.brake_accel * (k * self.dt - t0)), speed0)
+        limit = self.params.max_accel
+        self.commands[k] = float(np.clip((speed - float(z[REDUCED.theta_dot])) / self.dt, -limit, limit))
+        self.commands.pop(k - 50, None)
+        return Command(speed=speed)
 
     def _pid_command(self, k: int, obs: Observation, z) -> Command:
         """The paper's PID on the current goal (the stop in progress, or the circle), as a speed command.
@@ -1044,12 +1206,15 @@ class NMPC:
             "late_solves": self.log["late"],
             "fallback_shifted": self.log["fallback_shifted"],
             "fallback_pid": self.log["fallback_pid"],
+            "fallback_brake": self.log["fallback_brake"],
             "plan_time": self.plan_time,
             "stop_replans": self.log["replans"],
+            "brakes": self.log["brakes"],
             "plans": plans,
             "plan_duration": float(sum(seg[0].T for seg in legs)) if legs else None,
             "plan_solves": len(self.log["plan_solve_times"]),
             "plan_failures": self.log["plan_failures"],
+            "plan_late": self.log["plan_late"],
             "plan_wait": self.log["plan_wait"],
             "plan_solve_time_median": float(np.median(plan_times)),
             "plan_solve_time_max": float(plan_times.max()),

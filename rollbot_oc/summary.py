@@ -127,7 +127,7 @@ RUN_FIELDS = (
     Field("min_slide_margin", "least slide margin", "N", ".2f"),
     Field("solve_median_ms", "solve time median", "ms", ".2f"),
     Field("solve_p95_ms", "solve time p95", "ms", ".2f"),
-    Field("fallbacks", "fallbacks (shifted / PID)"),
+    Field("fallbacks", "fallbacks (shifted / brake / PID)"),
     Field("ocp_bound", "minimum-time bound", "s", ".1f"),
     Field("bound_ratio", "time / minimum-time bound", "", ".2f"),
 )
@@ -166,7 +166,7 @@ def comparison_row(run) -> dict:
         row["max_estimation_error_cm"] = 100 * m["max_estimation_error"]
     if "solve_time_median" in m:  # an optimising controller: its solves, fallbacks and plans
         row.update(solve_median_ms=1e3 * m["solve_time_median"], solve_p95_ms=1e3 * m["solve_time_p95"],
-                   fallbacks=f"{m['fallback_shifted']} / {m['fallback_pid']}")
+                   fallbacks=f"{m['fallback_shifted']} / {m.get('fallback_brake', 0)} / {m['fallback_pid']}")
         fastest = [plan.get("fastest") for plan in m.get("plans", [])]
         if fastest and all(f is not None for f in fastest):
             row["ocp_bound"] = float(sum(fastest))
@@ -226,7 +226,9 @@ def run_verdict(run) -> str:
     parts += [f"{what} limit exceeded" for what in ("torque", "speed") if m.get(f"{what}_limit_violation")]
     if "fallback_shifted" in m:
         shifted, pid = m["fallback_shifted"], m["fallback_pid"]
-        parts.append(f"fallbacks: {shifted} shifted plan, {pid} PID" if shifted or pid else "no fallbacks")
+        brake = m.get("fallback_brake", 0)
+        named = [f"{n} {what}" for n, what in ((shifted, "shifted plan"), (brake, "brake"), (pid, "PID")) if n]
+        parts.append(f"fallbacks: {', '.join(named)}" if named else "no fallbacks")
     return ", ".join(p for p in parts if p)
 
 

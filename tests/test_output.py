@@ -147,6 +147,8 @@ def test_verdicts_name_what_went_wrong():
     nmpc = fake_run("nmpc", True, 27.3, [0.03] * 4, fallback_shifted=2, fallback_pid=1)
     assert run_verdict(pid) == "completed in 190.4 s, worst stop error 1.6 cm"
     assert run_verdict(nmpc) == "completed in 27.3 s, worst stop error 3.0 cm, fallbacks: 2 shifted plan, 1 PID"
+    braked = fake_run("nmpc", True, 27.3, [0.03] * 4, fallback_shifted=0, fallback_brake=2, fallback_pid=0)
+    assert run_verdict(braked) == "completed in 27.3 s, worst stop error 3.0 cm, fallbacks: 2 brake"
     assert compare_headline([pid, nmpc]) == "n_shape: nmpc 7.0x as fast as pid (27.3 s against 190.4 s)"
     stuck = fake_run("nmpc", False, None, [0.02], fallback_shifted=0, fallback_pid=0,
                      events=[{"kind": "slide", "time": 12.34, "margin": -0.1}], torque_limit_violation=True)

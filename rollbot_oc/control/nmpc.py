@@ -258,8 +258,10 @@ class NMPCSettings:
         (``rollbot_oc.codegen``); ``None`` uses it when a C compiler exists.
     plan : OCPSettings
         Settings of the minimum-time legs (a coarser grid than the offline
-        default, compiled stage functions, and 15 % of the motor's acceleration
-        left to the feedback).
+        default, compiled stage functions, 15 % of the motor's acceleration
+        left to the feedback, and at most 150 IPOPT iterations per start: a
+        start that has not converged by then seldom does, and the robot waits
+        for the plans it gets from rest).
     entry : OCPSettings
         Settings of a circle's entry onto its orbit (its ``N`` follows the entry time).
     """
@@ -304,7 +306,7 @@ class NMPCSettings:
     rti_step_time: float = 0.01
     ipopt_iteration_time: float = 0.01
     compiled: bool | None = None
-    plan: OCPSettings = field(default_factory=lambda: OCPSettings(N=40, accel_margin=0.85, compiled=True))
+    plan: OCPSettings = field(default_factory=lambda: OCPSettings(N=40, accel_margin=0.85, compiled=True, max_iter=150))
     entry: OCPSettings = field(default_factory=OCPSettings)
 
     def __post_init__(self):
@@ -902,8 +904,8 @@ class NMPC:
             self._refine_at = None  # when to refine the quasi-stable guess followed
             self._braking_since = None  # when the robot began to be brought to rest
             self._anchor = None
-            self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0, "fallback_brake": 0, "late": 0,
-                        "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [], "plan_failures": 0,
+            self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0,
+                        "fallback_brake": 0, "late": 0, "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [], "plan_failures": 0,
                         "plan_wait": 0.0, "brakes": 0,
                         "plan_late": 0}
         self.k = 0

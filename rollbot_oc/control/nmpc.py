@@ -985,8 +985,8 @@ class NMPC:
 
     def _advance_mission(self, t_now: float, obs: Observation, reached: bool, z):
         """Follow refined legs as they become ready, plan the next leg ahead, leave a stop once it is
-        reached, and plan a new leg to the stop from where the robot is if it came to rest away from it or
-        was pushed off its plan."""
+        reached, and, if the robot was pushed off its plan or came to rest outside its stop's tolerance,
+        bring it to rest and plan a new leg to the same stop from there (``_brake``)."""
         if self.reference is None or isinstance(self.mission, Circle):
             return
         s, i = self.settings, self.segment
@@ -1025,11 +1025,11 @@ class NMPC:
         at_rest = (self.params.R * float(np.linalg.norm(z[REDUCED.omega])) < s.recover_speed
                    and abs(float(z[REDUCED.theta_dot])) < s.recover_drive)
         if self._braking_since is not None:  # recovering: a new leg from rest, planned while it holds
-            if self._take_pending(t_now):  # (``_take_pending`` dropped a failed plan: from its guess)
+            if self._take_pending(t_now):  # the leg from rest is ready: follow it
                 self._braking_since = None
-            elif i in self._pending:
+            elif i in self._pending:  # still being planned: hold
                 return
-            elif self._rest_plan:
+            elif self._rest_plan:  # it failed (and was dropped): the quasi-stable guess from here
                 self._braking_since = None
                 self._provisional(z, t_now)
             elif at_rest or t_now - self._braking_since >= s.brake_wait - 1e-9:
@@ -1049,8 +1049,6 @@ class NMPC:
         if settled_away or (off_course and local >= s.replan_interval):
             # never move on from here: a new leg to the same stop from where the robot is, once it is at
             # rest (the next leg, planned from where this one was to end, is planned again)
-            self._pending.pop(i, None)
-            self._pending.pop(i + 1, None)
             self._brake(z, t_now)  # (at rest already if settled away: planned from there at once)
             self.warm, self.current = None, None
             self.log["replans"] += 1

@@ -90,6 +90,20 @@ def test_the_fastest_of_several_starts_is_no_slower_than_the_first():
     assert best.iterations >= single.iterations  # the total over the starts
 
 
+def test_a_gentler_plan_keeps_to_its_scaled_motor_limits_and_takes_longer(leg):
+    """``motor_scale`` scales the driving-speed and acceleration limits of one solve (the NMPC's caution after a
+    recovery): the plan stays within them, and a slower motor cannot be faster."""
+    ocp, start, plan = leg
+    gentle = ocp.solve(start, [0.0, 1.2], guess=plan, motor_scale=0.7)
+    s = ocp.settings
+    assert gentle.success and gentle.T > plan.T
+    assert np.abs(gentle.u).max() <= 0.7 * s.accel_margin * PARAMS.max_accel + 1e-6
+    assert np.abs(gentle.z[9]).max() <= 0.7 * s.speed_margin * PARAMS.max_speed + 1e-6
+    assert np.abs(plan.u).max() > 0.7 * s.accel_margin * PARAMS.max_accel  # the full plan uses more
+    with pytest.raises(ValueError, match="motor_scale"):
+        ocp.solve(start, [0.0, 1.2], guess=plan, motor_scale=1.5)
+
+
 def test_a_balanced_state_stays_at_rest_on_a_slope():
     """``imbalance`` = 0 is a static equilibrium of the full model on a 3 deg slope: released there with
     the motor still, the robot stays put, while the level floor's rest state (pendulum straight down)

@@ -120,8 +120,9 @@ class TrackingWeights:
 
     @classmethod
     def for_braking(cls) -> "TrackingWeights":
-        """Recovery: bring the robot to rest wherever that happens (motion only, no position or attitude)."""
-        return cls(position=0.0, attitude=0.0, omega=40.0, speed=1.0, accel=0.05, terminal=20.0)
+        """Recovery: bring the robot to rest wherever that happens (the motion weighted, position and attitude
+        only a little, to keep the QP's Hessian regular)."""
+        return cls(position=1.0, attitude=0.1, omega=40.0, speed=1.0, accel=0.05, terminal=20.0)
 
     @classmethod
     def for_circles(cls) -> "TrackingWeights":
@@ -229,6 +230,12 @@ class NMPCSettings:
         The next leg is planned (from the rest state the current leg ends in,
         on the tilt estimated by then) when this fraction of the current leg
         has gone by, so that it is ready at the stop.
+    caution, caution_floor : float
+        After each recovery (``brakes``) on a run, later legs planned from rest
+        (not the refinements of a guess, which start moving) are planned with
+        their driving-speed and acceleration limits scaled by ``caution`` once
+        more, down to ``caution_floor``: a robot that could not follow its plans
+        gets gentler ones.
     plan_starts : int
         A leg planned ahead is solved from this many quasi-stable guesses, and
         the fastest result is kept.
@@ -299,6 +306,8 @@ class NMPCSettings:
     plan_ahead: float = 0.0
     plan_iteration_time: float = 0.015
     plan_starts: int = 3
+    caution: float = 0.9
+    caution_floor: float = 0.7
     plan_guess_time: float = 0.5
     entry_times: tuple = (5.0, 7.0, 10.0)
     max_solve_time: float | None = None
@@ -848,8 +857,10 @@ class NMPC:
         s, stop = self.settings, self.mission.stops[segment]
         wall = time.perf_counter()
         try:  # a refinement from its guess, or the fastest of several starts
-            plan = self._legs.solve(z_start, stop, guess=guess, tilt=self.estimator.tilt.copy()) if guess is not None \
-                else self._legs.fastest(z_start, stop, s.plan_starts, tilt=self.estimator.tilt.copy())
+            tilt = self.estimator.tilt.copy()
+            scale = max(s.caution_floor, s.caution ** self.log["brakes"])  # from rest: gentler after recoveries
+            plan = self._legs.solve(z_start, stop, guess=guess, tilt=tilt) if guess is not None \
+                else self._legs.fastest(z_start, stop, s.plan_starts, tilt=tilt, motor_scale=scale)
             iterations = plan.iterations
         except SolveFailed as exc:  # reported, never followed
             self.log["statuses"].append(f"plan failed: {exc.status}")
@@ -905,9 +916,8 @@ class NMPC:
             self._braking_since = None  # when the robot began to be brought to rest
             self._anchor = None
             self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0,
-                        "fallback_brake": 0, "late": 0, "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [], "plan_failures": 0,
-                        "plan_wait": 0.0, "brakes": 0,
-                        "plan_late": 0}
+                        "fallback_brake": 0, "late": 0, "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [],
+                        "plan_failures": 0, "plan_wait": 0.0, "brakes": 0, "plan_late": 0}
         self.k = 0
         self.warm = None
         self.current = None  # (U, index of the interval in use)
@@ -1029,14 +1039,14 @@ class NMPC:
                 self._braking_since = None
             elif i in self._pending:  # still being planned: hold
                 return
-            elif self._rest_plan:  # it failed (and was dropped): the quasi-stable guess from here
+            elif self._rest_plan is not None:  # it failed (and was dropped): the quasi-stable guess from here
                 self._braking_since = None
                 self._provisional(z, t_now)
             elif at_rest or t_now - self._braking_since >= s.brake_wait - 1e-9:
                 start = z.copy()
                 start[REDUCED.velocity] = 0.0
                 self._launch(i, t_now, None, start)
-                self._rest_plan = True
+                self._rest_plan = start  # held there (``hold_weights``) until the leg is ready
                 return
             else:
                 return
@@ -1068,7 +1078,7 @@ class NMPC:
             self.reference.segments[self.segment] = (hold, {"stop": self.mission.stops[self.segment]})
             self.segment_start = t_now
         self._braking_since = t_now
-        self._rest_plan = False  # whether the new leg from rest has been launched
+        self._rest_plan = None  # the rest state the new leg is planned from, once launched
         self._anchor = None
         self._refine_at = None
         self.log["brakes"] += recovery
@@ -1076,8 +1086,10 @@ class NMPC:
     def _replan(self, z, t_now: float, k: int):
         s = self.settings
         diag = None
-        if self._braking_since is not None:  # rest where the robot is: only its motion counts
-            Zr, Ur, diag = np.tile(z[:, None], (1, s.N + 1)), np.zeros(s.N), self._brake_diag
+        if self._braking_since is not None:  # rest where the robot is (its motion counts), then hold there
+            held = self._rest_plan is not None
+            Zr = np.tile((self._rest_plan if held else z)[:, None], (1, s.N + 1))
+            Ur, diag = np.zeros(s.N), self._hold_diag if held else self._brake_diag
             Zr[REDUCED.velocity] = 0.0
         else:
             Zr, Ur = self.reference.sample(self.segment, t_now - self.segment_start, s.h, s.N, position=z[0:2])

@@ -285,18 +285,26 @@ class _MinTimeOCP:
         self.solver = ca.nlpsol(self.name, "ipopt", nlp, opts)
         self.n_extra = n - (iu + N + 1)
 
-    def _solve(self, z0, p_extra, guess: Plan, guess_extra=(), duration: float | None = None, tilt=None) -> Plan:
+    def _solve(self, z0, p_extra, guess: Plan, guess_extra=(), duration: float | None = None, tilt=None,
+               motor_scale: float = 1.0) -> Plan:
         """Solve from a guess; ``duration`` (s) fixes the time (then the effort is what is minimised);
-        ``tilt`` (2,) replaces the parameters' floor tilt vector (an estimated slope)."""
+        ``tilt`` (2,) replaces the parameters' floor tilt vector (an estimated slope); ``motor_scale`` in
+        (0, 1] scales the plan's driving-speed and acceleration limits."""
         N = self.settings.N
         if guess.u.size != N:
             guess = guess.resample(N)
         x0 = np.concatenate([np.asarray(guess.z).T.ravel(), guess.u, [duration or guess.T], guess_extra])
         bounds = dict(self.bounds)
+        bounds["lbx"], bounds["ubx"] = bounds["lbx"].copy(), bounds["ubx"].copy()
         if duration is not None:
             i_T = NZ * (N + 1) + N
-            bounds["lbx"], bounds["ubx"] = bounds["lbx"].copy(), bounds["ubx"].copy()
             bounds["lbx"][i_T] = bounds["ubx"][i_T] = duration
+        if motor_scale != 1.0:
+            if not 0.0 < motor_scale <= 1.0:
+                raise ValueError(f"motor_scale = {motor_scale!r} must be in (0, 1]")
+            motor = np.r_[9:NZ * (N + 1):NZ, NZ * (N + 1):NZ * (N + 1) + N]  # driving speeds, accelerations
+            bounds["lbx"][motor] *= motor_scale
+            bounds["ubx"][motor] *= motor_scale
         p = self.params.vector()
         if tilt is not None:
             p[TILT] = tilt
@@ -335,12 +343,14 @@ class RestToRest(_MinTimeOCP):
         self.extra_params = [self.goal]
         self._finish()
 
-    def solve(self, start, goal, guess: Plan | None = None, duration: float | None = None, tilt=None) -> Plan:
+    def solve(self, start, goal, guess: Plan | None = None, duration: float | None = None, tilt=None,
+              motor_scale: float = 1.0) -> Plan:
         """Plan from ``start`` (full state (11,) or reduced (10,)) to rest at ``goal`` (m).
 
         Minimum time, or with ``duration`` (s) given, the least motor effort in that time.  ``tilt``
         (2,), the floor's tilt vector (in-plane gravity per g), replaces the parameters' slope: the plan
-        then ends balanced on that floor.
+        then ends balanced on that floor.  ``motor_scale`` in (0, 1] scales the plan's driving-speed and
+        acceleration limits (a gentler plan, more margin for the feedback).
 
         Raises
         ------
@@ -350,20 +360,20 @@ class RestToRest(_MinTimeOCP):
         z0 = _reduced(start)
         goal = np.asarray(goal, float)
         guess = guess or quasi_stable_guess(z0, goal, self.params, self.settings.N)
-        plan = self._solve(z0, goal, guess, duration=duration, tilt=tilt)
+        plan = self._solve(z0, goal, guess, duration=duration, tilt=tilt, motor_scale=motor_scale)
         plan.extra = {"goal": goal.tolist()}
         if not plan.success:
             raise SolveFailed(f"rest-to-rest plan to {goal.tolist()}", plan.status, plan)
         return plan
 
 
-    def fastest(self, start, goal, starts: int = 3, tilt=None) -> Plan:
+    def fastest(self, start, goal, starts: int = 3, tilt=None, motor_scale: float = 1.0) -> Plan:
         """The fastest of the minimum-time plans found from the ``starts`` best quasi-stable guesses.
 
         A minimum-time leg has local optima, and the guess decides which one
         IPOPT finds; a few starts make the result much less a matter of luck.
         The plan's ``iterations`` and ``solve_time`` are the totals over the
-        starts.
+        starts; ``tilt`` and ``motor_scale`` as for ``solve``.
 
         Raises
         ------
@@ -375,7 +385,7 @@ class RestToRest(_MinTimeOCP):
         best, failure, iterations, seconds = None, None, 0, 0.0
         for guess in quasi_stable_guesses(z0, goal, self.params, self.settings.N, starts):
             try:
-                plan = self.solve(z0, goal, guess=guess, tilt=tilt)
+                plan = self.solve(z0, goal, guess=guess, tilt=tilt, motor_scale=motor_scale)
             except SolveFailed as exc:
                 failure, plan = exc, exc.plan
             iterations += plan.iterations if plan is not None else 0

@@ -10,6 +10,7 @@ import pytest
 from rollbot_oc.codegen import compiler
 from rollbot_oc.control.missions import Waypoints
 from rollbot_oc.control.nmpc import NMPC, NMPCSettings, RTISolver, TiltEstimator
+from rollbot_oc.control.ocp import RestToRest, SolveFailed
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.problems import load_problem, run_problem
 
@@ -188,6 +189,31 @@ def test_a_run_of_failed_solves_on_a_leg_brakes_and_replans_from_rest(monkeypatc
     problem = replace(base, mission=Waypoints(tuple(base.mission.points[:2])), duration=60.0)
     m = run_problem(problem, "nmpc").metrics
     assert m["fallback_brake"] >= 1 and m["fallback_pid"] == 0 and m["brakes"] >= 1
+    assert m["completed"] and max(m["stop_errors"]) <= 0.07
+    check_plant_limits(m)
+
+
+def test_a_leg_that_cannot_be_planned_goes_by_a_stepping_stone(monkeypatch):
+    """Legs from rest longer than 0.7 m are made to fail: the second leg is planned to a stepping stone
+    ``stone_distance`` towards its stop, and from the stone, at rest, to the stop; both stops are reached
+    at rest, and the stone is counted, not as a recovery."""
+    fastest = RestToRest.fastest
+    tried = []
+
+    def short_legs_only(self, start, goal, *args, **kwargs):
+        distance = float(np.linalg.norm(np.asarray(goal, float) - np.asarray(start, float)[:2]))
+        tried.append(distance)
+        if distance > 0.7:
+            raise SolveFailed("injected", "Maximum_Iterations_Exceeded", None)
+        return fastest(self, start, goal, *args, **kwargs)
+
+    monkeypatch.setattr(RestToRest, "fastest", short_legs_only)
+    base = load_problem(PROBLEMS / "n_shape.toml")
+    problem = replace(base, mission=Waypoints(tuple(base.mission.points[:2])), duration=60.0)
+    m = run_problem(problem, "nmpc").metrics
+    stone = NMPCSettings().stone_distance
+    assert any(d > 0.7 for d in tried) and any(abs(d - stone) < 1e-9 for d in tried)
+    assert m["stones"] >= 1 and m["brakes"] == 0 and m["plan_failures"] >= 1
     assert m["completed"] and max(m["stop_errors"]) <= 0.07
     check_plant_limits(m)
 

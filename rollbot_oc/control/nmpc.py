@@ -121,8 +121,9 @@ class TrackingWeights:
     @classmethod
     def for_braking(cls) -> "TrackingWeights":
         """Recovery: bring the robot to rest wherever that happens (the motion weighted, position and attitude
-        only a little, to keep the QP's Hessian regular)."""
-        return cls(position=1.0, attitude=0.1, omega=40.0, speed=1.0, accel=0.05, terminal=20.0)
+        only a little, to keep the QP's Hessian regular; the motor's acceleration as at a stop: with less, the
+        brake of a heavy pendulum chatters between the motor's limits)."""
+        return cls(position=1.0, attitude=0.1, omega=40.0, speed=1.0, accel=0.5, terminal=20.0)
 
     @classmethod
     def for_circles(cls) -> "TrackingWeights":
@@ -239,6 +240,11 @@ class NMPCSettings:
     plan_starts : int
         A leg planned ahead is solved from this many quasi-stable guesses, and
         the fastest result is kept.
+    stone_distance : float
+        A leg from rest to a stop farther than this that cannot be planned is
+        planned instead to a stepping stone this far towards the stop (a
+        shorter leg converges far more often on a robot whose revolving
+        radii are small); from the stone, the leg is planned again, m.
     plan_iteration_time, plan_guess_time : float
         Modelled compute time of one IPOPT iteration of a leg's plan, and of
         the quasi-stable guesses of a leg planned ahead, s: a plan is used only
@@ -306,6 +312,7 @@ class NMPCSettings:
     plan_ahead: float = 0.0
     plan_iteration_time: float = 0.015
     plan_starts: int = 3
+    stone_distance: float = 0.6
     caution: float = 0.9
     caution_floor: float = 0.7
     plan_guess_time: float = 0.5
@@ -856,19 +863,31 @@ class NMPC:
         moment the stop before it is reached)."""
         s, stop = self.settings, self.mission.stops[segment]
         wall = time.perf_counter()
-        try:  # a refinement from its guess, or the fastest of several starts
-            tilt = self.estimator.tilt.copy()
-            scale = max(s.caution_floor, s.caution ** self.log["brakes"])  # from rest: gentler after recoveries
-            plan = self._legs.solve(z_start, stop, guess=guess, tilt=tilt) if guess is not None \
-                else self._legs.fastest(z_start, stop, s.plan_starts, tilt=tilt, motor_scale=scale)
-            iterations = plan.iterations
-        except SolveFailed as exc:  # reported, never followed
-            self.log["statuses"].append(f"plan failed: {exc.status}")
-            self.log["plan_failures"] += 1
-            plan, iterations = None, exc.plan.iterations if exc.plan is not None else 0
+        tilt = self.estimator.tilt.copy()
+        scale = max(s.caution_floor, s.caution ** self.log["brakes"])  # from rest: gentler after recoveries
+        goals = [np.asarray(stop, float)]
+        if guess is None:  # from rest: a stepping stone if the stop cannot be planned
+            towards = goals[0] - np.asarray(z_start[REDUCED.position], float)
+            distance = float(np.linalg.norm(towards))
+            if distance > s.stone_distance:
+                goals.append(goals[0] - towards * (1.0 - s.stone_distance / distance))
+        plan, iterations = None, 0
+        for goal in goals:
+            try:  # a refinement from its guess, or the fastest of several starts
+                plan = self._legs.solve(z_start, goal, guess=guess, tilt=tilt) if guess is not None \
+                    else self._legs.fastest(z_start, goal, s.plan_starts, tilt=tilt, motor_scale=scale)
+                iterations += plan.iterations
+                break
+            except SolveFailed as exc:  # reported, never followed
+                self.log["statuses"].append(f"plan failed: {exc.status}")
+                self.log["plan_failures"] += 1
+                iterations += exc.plan.iterations if exc.plan is not None else 0
+        if plan is not None and goal is not goals[0]:
+            plan.extra["stone"] = True  # from its end, the leg is planned again
+            self.log["stones"] += 1
         wall = time.perf_counter() - wall
         self.log["plan_solve_times"].append(wall)
-        compute = wall if s.realtime else iterations * s.plan_iteration_time + (guess is None) * s.plan_guess_time
+        compute = wall if s.realtime else iterations * s.plan_iteration_time + (guess is None) * s.plan_guess_time * len(goals)
         ready = t_now + s.h * math.ceil(compute / s.h - 1e-9)  # used at a solve instant
         self._pending[segment] = {"plan": plan, "start": t_start, "ready": ready}
 
@@ -917,7 +936,7 @@ class NMPC:
             self._anchor = None
             self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0,
                         "fallback_brake": 0, "late": 0, "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [],
-                        "plan_failures": 0, "plan_wait": 0.0, "brakes": 0, "plan_late": 0}
+                        "plan_failures": 0, "plan_wait": 0.0, "brakes": 0, "plan_late": 0, "stones": 0, "unfit": 0}
         self.k = 0
         self.warm = None
         self.current = None  # (U, index of the interval in use)
@@ -1010,7 +1029,8 @@ class NMPC:
         plan, info = self.reference.segments[i]
         local = t_now - self.segment_start
         if (i + 1 < len(self.mission.stops) and self.reference.segments[i + 1] is None and i + 1 not in self._pending
-                and not plan.extra.get("provisional") and self._braking_since is None and i not in self._pending
+                and not plan.extra.get("provisional") and not plan.extra.get("stone") and self._braking_since is None
+                and i not in self._pending
                 and local >= s.plan_ahead * plan.T):
             end = plan.z[:, -1].copy()
             end[REDUCED.velocity] = 0.0
@@ -1035,6 +1055,13 @@ class NMPC:
         at_rest = (self.params.R * float(np.linalg.norm(z[REDUCED.omega])) < s.recover_speed
                    and abs(float(z[REDUCED.theta_dot])) < s.recover_drive)
         if self._braking_since is not None:  # recovering: a new leg from rest, planned while it holds
+            pending = self._pending.get(i)
+            if (pending is not None and pending["plan"] is not None and t_now >= pending["ready"] - 1e-9
+                    and not self._fits(pending, z)):  # it did not stay where its leg starts: brake once more
+                del self._pending[i]
+                self._braking_since, self._rest_plan = t_now, None
+                self.log["unfit"] += 1
+                return
             if self._take_pending(t_now):  # the leg from rest is ready: follow it
                 self._braking_since = None
             elif i in self._pending:  # still being planned: hold
@@ -1059,7 +1086,8 @@ class NMPC:
         if settled_away or (off_course and local >= s.replan_interval):
             # never move on from here: a new leg to the same stop from where the robot is, once it is at
             # rest (the next leg, planned from where this one was to end, is planned again)
-            self._brake(z, t_now)  # (at rest already if settled away: planned from there at once)
+            # (at rest already if settled away: planned from there at once; a stepping stone is no recovery)
+            self._brake(z, t_now, recovery=not (settled_away and plan.extra.get("stone")))
             self.warm, self.current = None, None
             self.log["replans"] += 1
 
@@ -1222,6 +1250,8 @@ class NMPC:
             "plan_time": self.plan_time,
             "stop_replans": self.log["replans"],
             "brakes": self.log["brakes"],
+            "stones": self.log["stones"],
+            "plans_unfit": self.log["unfit"],
             "plans": plans,
             "plan_duration": float(sum(seg[0].T for seg in legs)) if legs else None,
             "plan_solves": len(self.log["plan_solve_times"]),

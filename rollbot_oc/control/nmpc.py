@@ -871,8 +871,9 @@ class NMPC:
             distance = float(np.linalg.norm(towards))
             if distance > s.stone_distance:
                 goals.append(goals[0] - towards * (1.0 - s.stone_distance / distance))
-        plan, iterations = None, 0
+        plan, iterations, tried = None, 0, 0
         for goal in goals:
+            tried += 1
             try:  # a refinement from its guess, or the fastest of several starts
                 plan = self._legs.solve(z_start, goal, guess=guess, tilt=tilt) if guess is not None \
                     else self._legs.fastest(z_start, goal, s.plan_starts, tilt=tilt, motor_scale=scale)
@@ -887,7 +888,8 @@ class NMPC:
             self.log["stones"] += 1
         wall = time.perf_counter() - wall
         self.log["plan_solve_times"].append(wall)
-        compute = wall if s.realtime else iterations * s.plan_iteration_time + (guess is None) * s.plan_guess_time * len(goals)
+        guesses = tried * s.plan_guess_time if guess is None else 0.0
+        compute = wall if s.realtime else iterations * s.plan_iteration_time + guesses
         ready = t_now + s.h * math.ceil(compute / s.h - 1e-9)  # used at a solve instant
         self._pending[segment] = {"plan": plan, "start": t_start, "ready": ready}
 

@@ -59,7 +59,7 @@ from scipy.interpolate import CubicHermiteSpline
 from rollbot_oc.dynamics import NU, NW, OMEGA, POS, QUAT, symbolic_model
 from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.fastcall import fast_map
-from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
+from rollbot_oc.params import PARAM_VECTOR_FIELDS, ParamView, RollbotParams
 from rollbot_oc.rotations import quat_multiply_np
 
 __all__ = [
@@ -70,7 +70,6 @@ __all__ = [
 BRANCHES = ("slow", "fast")
 FULL_RESIDUAL_TOL = 1e-9  # rad/s^2, residual of the full equations at a returned state
 _EX, _EY, _EZ = ca.DM([1, 0, 0]), ca.DM([0, 1, 0]), ca.DM([0, 0, 1])
-_P = {name: i for i, name in enumerate(PARAM_VECTOR_FIELDS)}
 
 
 def level(params: RollbotParams) -> RollbotParams:
@@ -105,7 +104,8 @@ class QuasiSymbolic:
 
 def _geometry(z, omega0, p):
     kappa, theta0, xi = z[0], z[1], z[2]
-    R, r0, phi = p[_P["R"]], p[_P["r0"]], p[_P["phi"]]
+    P = ParamView(p)
+    R, r0, phi = P.R, P.r0, P.phi
     T = ca.vertcat(ca.horzcat(ca.cos(xi), 0, ca.sin(xi)), ca.horzcat(0, 1, 0), ca.horzcat(-ca.sin(xi), 0, ca.cos(xi)))
     r_body = r0 * ca.vertcat(ca.sin(phi) * ca.cos(theta0), ca.sin(phi) * ca.sin(theta0), -ca.cos(phi))
     u = R * _EZ + ca.mtimes(T, r_body)
@@ -117,7 +117,8 @@ def _geometry(z, omega0, p):
 def _closed_form(z, omega0, p):
     """Regularised paper eqn 'quasi' (see module doc)."""
     kappa, theta0, xi, T, u, z_axis, R0 = _geometry(z, omega0, p)
-    m, M, I, k0, g, R = (p[_P[k]] for k in ("m", "M", "I", "k0", "g", "R"))
+    P = ParamView(p)
+    m, M, I, k0, g, R = P.m, P.M, P.I, P.k0, P.g, P.R
     u_h = u - ca.dot(u, _EZ) * _EZ
     A0 = m * ca.cross(u, -g * _EZ)
     A1 = -k0 * (kappa * _EZ - z_axis)
@@ -153,7 +154,7 @@ def quasi_symbolic() -> QuasiSymbolic:
                         ["z_guess", "omega0", "p"], ["z"])
     outputs = ca.Function(
         "quasi_outputs", [z, omega0, p],
-        [ca.vertcat(Omega, R0, omega0 * p[_P["R"]] * ca.sin(z[2]), margins, sym.motor_torque(x, u0, p, w0))],
+        [ca.vertcat(Omega, R0, omega0 * ParamView(p).R * ca.sin(z[2]), margins, sym.motor_torque(x, u0, p, w0))],
         ["z", "omega0", "p"], ["out"])
     return QuasiSymbolic(
         ca.Function("quasi_residual", [z, omega0, p], [_closed_form(z, omega0, p)], ["z", "omega0", "p"], ["res"]),
@@ -432,7 +433,7 @@ def _batched() -> _BatchFunctions:
                          ["zw", "omega0_next", "p"], ["zw_next", "info"], cse)
     check = ca.Function("quasi_check", [z, w, p], [ca.vertcat(res, q.full_residual(z, w, p), q.outputs(z, w, p))],
                         ["z", "omega0", "p"], ["out"], cse)
-    R0 = p[_P["R"]] * ca.sin(z[2]) / z[0]
+    R0 = ParamView(p).R * ca.sin(z[2]) / z[0]
     slope = ca.Function("quasi_slope", [z, w, p], [ca.mtimes(ca.jacobian(R0, z), tangent(z, w, p))],
                         ["z", "omega0", "p"], ["dR0"], cse)
     return _BatchFunctions(newton, tangent, coarse, check, slope)

@@ -53,7 +53,7 @@ from rollbot_oc.errors import ConfigError
 from rollbot_oc.fastcall import FastFunction
 from rollbot_oc.onboard import EstimationRecord, OnboardSensing
 from rollbot_oc.outputs import save_npz
-from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
+from rollbot_oc.params import ParamView, RollbotParams
 from rollbot_oc.sensors import body_signals, rotate_randomly
 
 __all__ = [
@@ -64,7 +64,6 @@ __all__ = [
 # Layout of the per-step diagnostics the plant returns with each step.
 DIAG_NAMES = ("theta_ddot", "motor_torque", "Nx", "Ny", "Nz", "no_jump_margin", "no_slide_margin")
 NDIAG = len(DIAG_NAMES)
-PARAM_INDEX = {name: i for i, name in enumerate(PARAM_VECTOR_FIELDS)}
 
 
 def _period_integrator(dt: float, substeps: int, method: str, samples: int = 0) -> ca.Function:
@@ -130,7 +129,7 @@ def plant_step(dt: float = 0.01, substeps: int = 4, method: str = "rk4", samples
     npar = sym.f.size1_in(2)
     integrate = _period_integrator(dt, substeps, method, samples)
     x, a_cmd, p, w = ca.MX.sym("x", NX), ca.MX.sym("a_cmd", NU), ca.MX.sym("p", npar), ca.MX.sym("w", NW)
-    a = motor_speed_clip(a_cmd, x[THETA_DOT], p[PARAM_INDEX["max_speed"]], dt)
+    a = motor_speed_clip(a_cmd, x[THETA_DOT], ParamView(p).max_speed, dt)
     if samples:
         xk, ends = integrate(x, a, p, w)
     else:

@@ -115,7 +115,7 @@ def test_ipopt_route_converges_on_the_same_problem():
 
 @pytest.mark.skipif(compiler() is None, reason="no C compiler: the RTI runs on CasADi's virtual machine")
 def test_compiled_and_interpreted_linearisations_agree():
-    from rollbot_oc.control.nmpc import _stage_linearisation
+    from rollbot_oc.control.nmpc.tracking import _stage_linearisation
     from rollbot_oc.codegen import compiled
 
     f = _stage_linearisation(2, 0.95, 0.1)

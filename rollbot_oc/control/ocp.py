@@ -48,7 +48,7 @@ import numpy as np
 from rollbot_oc.codegen import compiled
 from rollbot_oc.errors import NotConverged, interruptible
 from rollbot_oc.dynamics import NW, NZ, from_reduced, imbalance, reduced_model, rk4, to_reduced
-from rollbot_oc.params import PARAM_VECTOR_FIELDS, TILT, RollbotParams
+from rollbot_oc.params import NP, TILT, ParamView, RollbotParams
 from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_state
 from rollbot_oc.rotations import quat_multiply
 from rollbot_oc.simulate import simulate
@@ -56,8 +56,6 @@ from rollbot_oc.simulate import simulate
 __all__ = ["OCPSettings", "Plan", "RestToRest", "OrbitEntry", "plan_waypoints", "interval_function",
            "stage_function", "quasi_stable_guess", "quasi_stable_guesses", "orbit_state", "SolveFailed"]
 
-NP = len(PARAM_VECTOR_FIELDS)
-_P = {name: i for i, name in enumerate(PARAM_VECTOR_FIELDS)}
 _W0 = ca.DM.zeros(NW)
 
 
@@ -143,7 +141,7 @@ def stage_function(substeps: int, friction_margin: float) -> ca.Function:
     red, F = reduced_model(), interval_function(substeps)
     z, u, zn, h, p = ca.SX.sym("z", NZ), ca.SX.sym("u"), ca.SX.sym("zn", NZ), ca.SX.sym("h"), ca.SX.sym("p", NP)
     N = red.reaction(z, u, p, _W0)
-    slack = (friction_margin * p[_P["mu"]] * N[2]) ** 2 - N[0] ** 2 - N[1] ** 2
+    slack = (friction_margin * ParamView(p).mu * N[2]) ** 2 - N[0] ** 2 - N[1] ** 2
     return ca.Function("stage", [z, u, zn, h, p],
                        [ca.vertcat(zn - F(z, u, h, p), red.motor_torque(z, u, p, _W0), N[2], slack)],
                        ["z", "u", "z_next", "h", "p"], ["g"])

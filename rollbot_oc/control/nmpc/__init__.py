@@ -1,0 +1,64 @@
+"""Nonlinear MPC: track minimum-time plans over the full dynamics, in real time, offset-free on a slope.
+
+Structure (do-mpc's separation: model, controller, simulator over one model):
+
+* **Plans** (``control.ocp``), computed as the robot moves: for stops, the
+  first leg starts at once on its quasi-stable guess (a simulation of the
+  model, a fraction of a second); once the tilt estimate has settled
+  (``tilt_settle``) a minimum-time leg is refined from where the guess will be
+  ``plan_handover`` later, and takes over there if it is ready by then (else
+  it is planned again from further along).  Every later leg is planned
+  during the one before (the fastest of ``plan_starts`` starts, from the rest
+  state the leg ends in, on the tilt estimated by then) and is used only once
+  its modelled compute time has passed; legs end balanced on the estimated
+  floor.
+* **Recovery**: a robot pushed off its plan is first brought to rest where
+  it is (the tracking NMPC with ``brake_weights``: motion only), then gets a
+  new leg from there, as at the start.  For circles, before the run: an entry onto the
+  quasi-stable orbit of the target circle in a fixed time (5 s, else 7 or
+  10 s) with the least effort, then the orbit itself.
+* **Tracking NMPC**: every ``h = 0.1`` s it solves a multiple-shooting
+  problem over ``N = 30`` intervals (3 s, about half a revolution period and
+  half the 7 s recovery time) that keeps the predicted reduced state near the
+  plan, with the motor's torque, speed and acceleration limits and the
+  contact margins as constraints.  The first interval's motor acceleration
+  is applied (the plant's motor follows it at 100 Hz).
+* **Offset-free**: a Kalman filter estimates the floor's tilt vector from the
+  mismatch between the measured and the predicted shell angular velocity
+  (its Jacobian by AD); the prediction model uses the estimate.  It absorbs
+  the slope and, with them, other steady model errors (masses, damping).
+* **Delay compensation**: a measurement that is ``L`` periods old is
+  predicted forward over the commands applied since.
+* **Warm start**: the previous solution shifted by one interval (primal and,
+  for IPOPT, dual values).
+* **Never crash the loop**: a QP made infeasible by the state (no command
+  keeps the torque or contact limits) is solved once more without the path
+  constraints (status ``relaxed (...)``); a failed or late solve (longer than
+  ``h``) falls back to the shifted previous solution; after ``max_failures``
+  consecutive failures the motor's speed is ramped to zero and the robot is
+  brought to rest (``fallback = "brake"``, stops) or the paper's PID takes
+  over for ``pid_time`` seconds (``"pid"``, circles).  Every solve's status
+  and time, and every fallback, is counted in ``report()``.
+
+Measured (what a real Rollbot would know): the pose from motion capture
+(position, orientation), the shell angular velocity from a gyroscope and the
+motor angle and speed from the encoder; that is the whole state.
+
+Solvers: ``"ipopt"`` (exact Hessian, warm-started; always works) and
+``"rti"``, a real-time iteration (one Gauss-Newton SQP step per sample with a
+QP solved by CasADi's ``qrqp``), much faster; ``benchmarks/bench_nmpc.py``
+measures both and the default is chosen from it.
+
+The package follows those concepts, one module each: ``settings`` (weights,
+horizon, limits, fallbacks), ``tracking`` (the tracking problem and its
+solvers), ``estimation`` (the floor-tilt filter), ``reference`` (what is
+tracked: legs, holds, orbits) and ``loop`` (the controller and its fallbacks).
+"""
+
+from rollbot_oc.control.nmpc.estimation import TiltEstimator
+from rollbot_oc.control.nmpc.loop import NMPC
+from rollbot_oc.control.nmpc.reference import Reference
+from rollbot_oc.control.nmpc.settings import NMPCSettings, TrackingWeights
+from rollbot_oc.control.nmpc.tracking import RTISolver, TrackingSolver
+
+__all__ = ["NMPCSettings", "TrackingWeights", "NMPC", "TrackingSolver", "RTISolver", "TiltEstimator", "Reference"]

@@ -1,0 +1,551 @@
+"""The NMPC controller: plans legs as the robot moves, tracks them, recovers, and falls back (see the package doc)."""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from rollbot_oc.control.missions import Circle, StopMonitor, Waypoints
+from rollbot_oc.control.nmpc.estimation import TiltEstimator
+from rollbot_oc.control.nmpc.reference import Reference
+from rollbot_oc.control.nmpc.settings import NMPCSettings
+from rollbot_oc.control.nmpc.tracking import RTISolver, TrackingSolver
+from rollbot_oc.control.ocp import OCPSettings, OrbitEntry, Plan, RestToRest, SolveFailed, quasi_stable_guess
+from rollbot_oc.dynamics import REDUCED, to_reduced
+from rollbot_oc.params import RollbotParams
+from rollbot_oc.simulate import Command, Observation
+
+__all__ = ["NMPC"]
+
+
+class NMPC:
+    """Tracking NMPC with minimum-time plans (see module doc); a ``Controller`` for ``simulate``.
+
+    Parameters
+    ----------
+    mission : Circle or Waypoints
+    params : RollbotParams, optional
+        The robot the controller believes in (level floor by default: the slope is estimated).
+    dt : float
+        Control period of the loop, s (the plant's 100 Hz).
+    settings : NMPCSettings, optional
+    """
+
+    def __init__(self, mission, params: RollbotParams | None = None, dt: float = 0.01,
+                 settings: NMPCSettings | None = None):
+        if not isinstance(mission, (Circle, Waypoints)):
+            raise ValueError(f"mission must be a Circle or Waypoints, got {type(mission).__name__}")
+        if any(not w.stop for w in getattr(mission, "points", ())):
+            raise ValueError("the NMPC plans stops; pass-through waypoints are for the PID's waypoint layer")
+        self.mission = mission
+        self._rule = mission.stop_rule if isinstance(mission, Waypoints) else None
+        self.params = params or RollbotParams()
+        self.dt = dt
+        self.settings = s = settings or NMPCSettings()
+        self.every = max(1, int(round(s.h / dt)))
+        if abs(self.every * dt - s.h) > 1e-9:
+            raise ValueError(f"NMPC h = {s.h} s must be a whole number of control periods dt = {dt} s")
+        self.weights = s.circle_weights if isinstance(mission, Circle) else s.waypoint_weights
+        solver = TrackingSolver if s.solver == "ipopt" else RTISolver
+        self.solver = solver(self.params, s, self.weights)
+        self._hold_diag = s.hold_weights.diagonal(s.N)
+        self._brake_diag = s.brake_weights.diagonal(s.N)
+        self.estimator = TiltEstimator(self.params, dt, s.tilt_process_noise, s.gyro_sigma,
+                                       s.tilt_model_error)
+        # the legs' planner, built once (its floor tilt is set per plan from the estimate)
+        self._legs = _rest_to_rest(self.params.replace(slope=0.0), s.plan) if isinstance(mission, Waypoints) else None
+        self.map = None  # set with the plans (for centre-of-curvature plots)
+        self.reference = None
+        self.plan_time = 0.0
+        self._pid = None
+        self.reset()
+
+    # -- planning ---------------------------------------------------------------------------------
+    def prepare(self, x0) -> Reference:
+        """What to follow first, from the full state ``x0`` (11,); called by ``run_problem`` before the run.
+
+        Stops: the quasi-stable guess of the first leg (a fraction of a second),
+        refined while the robot moves (see ``plan_handover``); every later leg
+        is planned during the one before.  Circles: the entry onto the orbit.
+        ``plan_time`` is the computation before the first command, s.
+
+        Raises
+        ------
+        SolveFailed
+            If a circle's entry cannot be planned.
+        """
+        start = time.perf_counter()
+        level = self.params.replace(slope=0.0)
+        from rollbot_oc.quasi_stable import RadiusMap
+
+        self.map = RadiusMap(level)
+        if isinstance(self.mission, Waypoints):
+            self.reference = Reference([None] * len(self.mission.stops))
+            self._follow_guess(to_reduced(x0), 0.0)  # refined while the robot moves (``_refine``)
+            self.plan_time = time.perf_counter() - start  # the first command can be given now
+            return self.reference
+        # The minimum-time entry takes hundreds of IPOPT iterations; a fixed entry time a little
+        # above it, with the least effort, converges in a fraction of the time.
+        settings = self.settings.entry
+        for duration in self.settings.entry_times:
+            intervals = int(round(duration / self.settings.h))
+            entry = _orbit_entry(self.mission.radius, level, replace(settings, N=intervals))
+            try:
+                plan = entry.solve(x0, self.mission.centre, duration=duration)
+                break
+            except SolveFailed:
+                if duration == self.settings.entry_times[-1]:
+                    raise
+        orbit = {"qs": entry.qs_reduced, "centre": self.mission.centre, "phase": plan.extra["phase"],
+                 "Omega": entry.quasi.Omega}
+        self.reference = Reference([(plan, {})], orbit)
+        self.plan_time = time.perf_counter() - start
+        return self.reference
+
+    # -- legs: planned while the robot moves --------------------------------------------------------
+    def _provisional(self, z, t_now: float):
+        """Start the current leg at once on its quasi-stable guess from ``z`` (a simulation of the model),
+        refined as it goes (``_refine``)."""
+        self._follow_guess(z, t_now)
+
+    def _follow_guess(self, z, t_now: float):
+        """Make the current leg the quasi-stable guess from ``z``, to be refined ``tilt_settle`` s later."""
+        s, stop = self.settings, self.mission.stops[self.segment]
+        guess = quasi_stable_guess(z, np.asarray(stop, float), self.params.replace(slope=0.0), s.plan.N)
+        guess.extra = {"goal": list(map(float, stop)), "provisional": True}
+        self.reference.segments[self.segment] = (guess, {"stop": stop})
+        self.segment_start = t_now
+        self._anchor = None
+        self._refine_at = t_now + s.tilt_settle
+
+    def _refine(self, t_now: float):
+        """Plan the minimum-time leg from where the guess followed now will be ``plan_handover`` s later
+        (if the guess lasts that long); it takes over there if it is ready by then."""
+        self._refine_at = None
+        guess = self.reference.segments[self.segment][0]
+        handover = t_now - self.segment_start + self.settings.plan_handover
+        if handover < guess.T - self.settings.plan_handover:
+            self._launch(self.segment, t_now, self.segment_start + handover, guess.state(handover),
+                         guess.tail(handover, self.settings.plan.N))
+
+    def _launch(self, segment: int, t_now: float, t_start, z_start, guess=None):
+        """Plan leg ``segment`` from ``z_start`` on the estimated floor; it may be used once its modelled
+        compute time has passed, and is followed from the absolute time ``t_start`` (s; None: from the
+        moment the stop before it is reached)."""
+        s, stop = self.settings, self.mission.stops[segment]
+        wall = time.perf_counter()
+        tilt = self.estimator.tilt.copy()
+        scale = max(s.caution_floor, s.caution ** self.log["brakes"])  # from rest: gentler after recoveries
+        goals = [np.asarray(stop, float)]
+        if guess is None:  # from rest: a stepping stone if the stop cannot be planned
+            towards = goals[0] - np.asarray(z_start[REDUCED.position], float)
+            distance = float(np.linalg.norm(towards))
+            if distance > s.stone_distance:
+                goals.append(goals[0] - towards * (1.0 - s.stone_distance / distance))
+        plan, iterations, tried = None, 0, 0
+        for goal in goals:
+            tried += 1
+            try:  # a refinement from its guess, or the fastest of several starts
+                plan = self._legs.solve(z_start, goal, guess=guess, tilt=tilt) if guess is not None \
+                    else self._legs.fastest(z_start, goal, s.plan_starts, tilt=tilt, motor_scale=scale)
+                iterations += plan.iterations
+                break
+            except SolveFailed as exc:  # reported, never followed
+                self.log["statuses"].append(f"plan failed: {exc.status}")
+                self.log["plan_failures"] += 1
+                iterations += exc.plan.iterations if exc.plan is not None else 0
+        if plan is not None and goal is not goals[0]:
+            plan.extra["stone"] = True  # from its end, the leg is planned again
+            self.log["stones"] += 1
+        wall = time.perf_counter() - wall
+        self.log["plan_solve_times"].append(wall)
+        guesses = tried * s.plan_guess_time if guess is None else 0.0
+        compute = wall if s.realtime else iterations * s.plan_iteration_time + guesses
+        ready = t_now + s.h * math.ceil(compute / s.h - 1e-9)  # used at a solve instant
+        self._pending[segment] = {"plan": plan, "start": t_start, "ready": ready}
+
+    def _fits(self, pending, z) -> bool:
+        """Whether a leg planned ahead starts where the robot is: within ``replan_distance`` and with its
+        pendulum frame turned less than ``replan_angle`` from the robot's."""
+        if pending is None or pending["plan"] is None:
+            return False
+        start = pending["plan"].z[:, 0]
+        cos_half = abs(float(start[REDUCED.quaternion] @ z[REDUCED.quaternion]))
+        turned = 2.0 * math.acos(min(cos_half, 1.0))
+        near = np.linalg.norm(start[REDUCED.position] - z[REDUCED.position]) <= self.settings.replan_distance
+        return near and turned <= self.settings.replan_angle
+
+    def _take_pending(self, t_now: float) -> bool:
+        """Follow the planned leg of the current segment if it is ready and meant to start by now."""
+        pending = self._pending.get(self.segment)
+        if pending is None or t_now < pending["ready"] - 1e-9:
+            return False
+        start = pending["start"] if pending["start"] is not None else t_now
+        if t_now < start - 1e-9:
+            return False  # ready before its start: kept until then
+        del self._pending[self.segment]
+        if pending["plan"] is None:  # the plan failed: the robot goes on with what it follows
+            return False
+        if pending["start"] is not None and pending["ready"] > pending["start"] + 1e-9:
+            # ready after the moment it was planned from: the robot has gone on without it
+            self.log["plan_late"] += 1
+            if self.reference.segments[self.segment][0].extra.get("provisional"):
+                self._refine_at = t_now  # once more, from further along the guess
+            return False
+        self.reference.segments[self.segment] = (pending["plan"], {"stop": self.mission.stops[self.segment]})
+        self.segment_start = start
+        self._anchor = None
+        return True
+
+    # -- the loop ---------------------------------------------------------------------------------
+    def reset(self):
+        """Forget the run; a mission prepared (``prepare``) and not yet run is kept."""
+        if getattr(self, "k", 0) > 0 or self.reference is None:
+            self.reference = None
+            self.segment, self.segment_start = 0, 0.0
+            self._pending = {}  # legs being planned, by segment
+            self._refine_at = None  # when to refine the quasi-stable guess followed
+            self._braking_since = None  # when the robot began to be brought to rest
+            self._anchor = None
+            self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0,
+                        "fallback_brake": 0, "late": 0, "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [],
+                        "plan_failures": 0, "plan_wait": 0.0, "brakes": 0, "plan_late": 0, "stones": 0, "unfit": 0}
+        self.k = 0
+        self.warm = None
+        self.current = None  # (U, index of the interval in use)
+        self.commands: dict[int, float] = {}
+        self.previous = None
+        self.failures = 0
+        self.pid_until = -1.0
+        self._ramp = None  # (start time, s; driving speed, rad/s) of the fallback's speed ramp
+        self._pid_fresh = True
+        self.stops: list[dict] = []
+        self._monitor = None
+        self._pid_goal = None
+        self._done = False
+        self._finished_at = None
+        self.estimator.reset()
+
+    @property
+    def done(self) -> bool:
+        """True ``finish_hold`` seconds after every stop has been reached (never for a circle)."""
+        return self._done
+
+    def __call__(self, obs: Observation) -> Command:
+        if self.reference is None:
+            self.prepare(obs.state)
+        k, dt = self.k, self.dt
+        self.k += 1
+        t_now = k * dt
+        z_meas = to_reduced(obs.state)
+        seen = int(round(obs.t / dt))
+        self._estimate(seen, z_meas)
+        z = self._predict_to_now(z_meas, seen, k)
+        reached = self._watch_stop(obs)
+        if k % self.every == 0:  # stops are left at the solve instants, so legs start on the grid
+            self._advance_mission(t_now, obs, reached, z)
+        if self._done:
+            return self._issue(k, 0.0)
+        if t_now < self.pid_until:
+            return self._fallback_command(k, obs, z)
+        if k % self.every == 0 or self.current is None:
+            self._replan(z, t_now, k)
+            if self.current is None:  # the fallback took over
+                return self._fallback_command(k, obs, z)
+        U, k_solved = self.current
+        return self._issue(k, float(U[min((k - k_solved) // self.every, len(U) - 1)]))
+
+    def _issue(self, k: int, accel: float) -> Command:
+        self.commands[k] = accel
+        self.commands.pop(k - 50, None)
+        return Command(accel=accel)
+
+    def _estimate(self, seen: int, z_meas):
+        if self.settings.estimate_tilt and self.previous is not None and seen == self.previous[0] + 1:
+            u = self.commands.get(self.previous[0], 0.0)
+            self.estimator.update(self.previous[1], u, z_meas)
+        self.previous = (seen, z_meas)
+
+    def _predict_to_now(self, z, seen: int, k: int):
+        """Delay compensation: carry a measurement taken at step ``seen`` forward to step ``k``."""
+        if seen >= k:
+            return z
+        p = self.estimator.params()
+        predicted = z
+        for j in range(seen, k):
+            predicted = self.estimator.step(predicted, self.commands.get(j, 0.0), p)[0].copy()
+        return predicted if np.all(np.isfinite(predicted)) else z  # never act on a broken prediction
+
+    def _watch_stop(self, obs: Observation) -> bool:
+        """Feed the current stop's monitor (``StopRule``: near it and at rest for 0.5 s); True once reached."""
+        if self.reference is None or isinstance(self.mission, Circle) or self._done:
+            return False
+        if self._monitor is None:
+            self._monitor = StopMonitor(self.reference.segments[self.segment][1]["stop"], self._rule)
+        centre_speed = self.params.R * math.hypot(obs.omega[0], obs.omega[1])
+        return self._monitor.update(obs.t, obs.position, centre_speed, obs.theta_dot)
+
+    def _advance_mission(self, t_now: float, obs: Observation, reached: bool, z):
+        """Follow refined legs as they become ready, plan the next leg ahead, leave a stop once it is
+        reached, and, if the robot was pushed off its plan or came to rest outside its stop's tolerance,
+        bring it to rest and plan a new leg to the same stop from there (``_brake``)."""
+        if self.reference is None or isinstance(self.mission, Circle):
+            return
+        s, i = self.settings, self.segment
+        if self._finished_at is not None:  # the last stop is reached: hold there a little longer
+            self._done = t_now >= self._finished_at + s.finish_hold - 1e-9
+            return
+        if self._refine_at is not None and t_now >= self._refine_at - 1e-9:
+            self._refine(t_now)
+        if self._braking_since is None:
+            self._take_pending(t_now)
+        plan, info = self.reference.segments[i]
+        local = t_now - self.segment_start
+        if (i + 1 < len(self.mission.stops) and self.reference.segments[i + 1] is None and i + 1 not in self._pending
+                and not plan.extra.get("provisional") and not plan.extra.get("stone") and self._braking_since is None
+                and i not in self._pending
+                and local >= s.plan_ahead * plan.T):
+            end = plan.z[:, -1].copy()
+            end[REDUCED.velocity] = 0.0
+            self._launch(i + 1, t_now, None, end)
+        if reached and local >= plan.T - 1e-9:
+            ahead = self._pending.get(i + 1)
+            if ahead is not None and t_now < ahead["ready"] - 1e-9:
+                self.log["plan_wait"] += s.h  # the next leg is still being planned: stay at this stop
+                return
+            self.stops.append(self._monitor.record(obs.position))
+            if i + 1 >= len(self.mission.stops):
+                self._finished_at = t_now
+                return
+            self._pending.pop(i, None)
+            self.segment += 1
+            self.warm, self.current, self._monitor = None, None, None
+            self._refine_at = self._braking_since = None
+            if not (self._fits(self._pending.get(self.segment), z) and self._take_pending(t_now)):
+                self._pending.pop(self.segment, None)  # nothing (or nothing that fits) planned ahead: from here
+                self._brake(z, t_now, recovery=False)
+            return
+        at_rest = (self.params.R * float(np.linalg.norm(z[REDUCED.omega])) < s.recover_speed
+                   and abs(float(z[REDUCED.theta_dot])) < s.recover_drive)
+        if self._braking_since is not None:  # recovering: a new leg from rest, planned while it holds
+            pending = self._pending.get(i)
+            if (pending is not None and pending["plan"] is not None and t_now >= pending["ready"] - 1e-9
+                    and not self._fits(pending, z)):  # it did not stay where its leg starts: brake once more
+                del self._pending[i]
+                self._braking_since, self._rest_plan = t_now, None
+                self.log["unfit"] += 1
+                return
+            if self._take_pending(t_now):  # the leg from rest is ready: follow it
+                self._braking_since = None
+            elif i in self._pending:  # still being planned: hold
+                return
+            elif self._rest_plan is not None:  # it failed (and was dropped): the quasi-stable guess from here
+                self._braking_since = None
+                self._provisional(z, t_now)
+            elif at_rest or t_now - self._braking_since >= s.brake_wait - 1e-9:
+                start = z.copy()
+                start[REDUCED.velocity] = 0.0
+                self._launch(i, t_now, None, start)
+                self._rest_plan = start  # held there (``hold_weights``) until the leg is ready
+                return
+            else:
+                return
+            self.warm, self.current = None, None
+            return
+        anchor = self._anchor if self._anchor is not None else plan.state(local)[REDUCED.position]
+        off_course = np.linalg.norm(z[REDUCED.position] - anchor) > s.replan_distance
+        away = np.linalg.norm(z[REDUCED.position] - np.asarray(info["stop"], float)) > self._rule.tolerance
+        settled_away = local >= plan.T + s.hold_time and at_rest and away
+        if settled_away or (off_course and local >= s.replan_interval):
+            # never move on from here: a new leg to the same stop from where the robot is, once it is at
+            # rest (the next leg, planned from where this one was to end, is planned again)
+            # (at rest already if settled away: planned from there at once; a stepping stone is no recovery)
+            self._brake(z, t_now, recovery=not (settled_away and plan.extra.get("stone")))
+            self.warm, self.current = None, None
+            self.log["replans"] += 1
+
+    def _brake(self, z, t_now: float, recovery: bool = True):
+        """Bring the robot to rest where it is (``brake_weights``) and hold it there while a new leg is
+        planned from rest, the fastest of ``plan_starts`` (``_advance_mission``; if that fails, the
+        quasi-stable guess from where it is).  The stop's planned legs are dropped.  ``recovery``: counted
+        in ``brakes`` (not for a leg begun at a stop the planned-ahead leg does not fit)."""
+        self._pending.pop(self.segment, None)
+        self._pending.pop(self.segment + 1, None)
+        if self.reference.segments[self.segment] is None:  # a new stop: rest where it is until its leg
+            rest = np.tile(np.asarray(z, float)[:, None], (1, 2))
+            rest[REDUCED.velocity] = 0.0
+            hold = Plan(np.array([0.0, self.settings.h]), rest, np.zeros(1), self.settings.h, "hold", True, 0, 0.0,
+                        {"provisional": True})
+            self.reference.segments[self.segment] = (hold, {"stop": self.mission.stops[self.segment]})
+            self.segment_start = t_now
+        self._braking_since = t_now
+        self._rest_plan = None  # the rest state the new leg is planned from, once launched
+        self._anchor = None
+        self._refine_at = None
+        self.log["brakes"] += recovery
+
+    def _replan(self, z, t_now: float, k: int):
+        s = self.settings
+        diag = None
+        if self._braking_since is not None:  # rest where the robot is (its motion counts), then hold there
+            held = self._rest_plan is not None
+            Zr = np.tile((self._rest_plan if held else z)[:, None], (1, s.N + 1))
+            Ur, diag = np.zeros(s.N), self._hold_diag if held else self._brake_diag
+            Zr[REDUCED.velocity] = 0.0
+        else:
+            Zr, Ur = self.reference.sample(self.segment, t_now - self.segment_start, s.h, s.N, position=z[0:2])
+            self._settle(Zr, t_now, z)
+            if self._anchor is not None:  # holding at a stop
+                diag = self._hold_diag
+        # q and -q are the same attitude: give the (continuous) reference the measurement's sign
+        if float(Zr[2:6, 0] @ z[2:6]) < 0:
+            Zr[2:6] *= -1.0
+        circle = None
+        if isinstance(self.mission, Circle):  # the distance from the circle counts once on the orbit
+            on_orbit = (t_now - self.segment_start + s.h * np.arange(s.N + 1)) > self.reference.segments[0][0].T
+            circle = (self.mission.centre, self.mission.radius, self.weights.radial * on_orbit)
+        x, lam, status, ok, seconds = self.solver.solve(z, Zr, Ur, self.estimator.params(), self.warm, circle, diag)
+        compute = seconds if s.realtime else self.solver.modelled_time()
+        late = compute > (s.h if s.max_solve_time is None else s.max_solve_time)
+        self.log["solve_times"].append(seconds)
+        self.log["statuses"].append(status)
+        self.log["tilt"].append(self.estimator.tilt.tolist())
+        if ok and not late:
+            _, U = self.solver.split(x)
+            self.current = (U, k)
+            self.warm = (self._shift(x), *lam)  # duals unshifted: the structure repeats every interval
+            self.failures = 0
+            return
+        self.log["late" if ok else "failed"] += 1
+        self.failures += 1
+        if self.current is not None and self.failures < s.max_failures:
+            self.log["fallback_shifted"] += 1  # keep following the previous solution (its index moves on)
+            return
+        self.warm, self.current, self.failures = None, None, 0
+        if isinstance(self.mission, Waypoints) and s.fallback == "brake":
+            # the motor's speed ramped to zero for a moment, then the NMPC brings the robot to rest and
+            # plans a new leg from there (``_advance_mission``)
+            self.log["fallback_brake"] += 1
+            if self._braking_since is None:
+                self._brake(z, t_now)
+            speed = float(z[REDUCED.theta_dot])
+            self._ramp = (t_now, speed)
+            self.pid_until = t_now + abs(speed) / s.brake_accel + s.h
+            return
+        self.log["fallback_pid"] += 1
+        self._ramp = None
+        self.pid_until = t_now + s.pid_time
+        self._pid_fresh = True
+
+    def _settle(self, Zr, t_now: float, z):
+        """Past a leg's end within ``hold_radius`` of its stop, hold the robot where it is: the reference
+        position becomes the position it had on arriving, so the NMPC damps the motion instead of chasing
+        a few centimetres a single motor cannot correct at rest."""
+        if self.reference is None or isinstance(self.mission, Circle):
+            return
+        plan, info = self.reference.segments[self.segment]
+        ended = t_now - self.segment_start + self.settings.h * np.arange(Zr.shape[1]) >= plan.T
+        if not ended[0]:
+            self._anchor = None
+            return
+        if self._anchor is None:
+            near = np.linalg.norm(z[REDUCED.position] - np.asarray(info["stop"], float)) <= self.settings.hold_radius
+            if not near:
+                return
+            self._anchor = z[REDUCED.position].copy()
+        Zr[REDUCED.position, :] = self._anchor[:, None]
+
+    def _shift(self, x):
+        Z, U = self.solver.split(x)
+        Zs = np.hstack([Z[:, 1:], Z[:, -1:]])
+        Us = np.concatenate([U[1:], U[-1:]])
+        return np.concatenate([Zs.T.ravel(), Us])
+
+    def _fallback_command(self, k: int, obs: Observation, z) -> Command:
+        """After ``max_failures`` failed solves: the motor's speed ramped to zero (``fallback = "brake"``),
+        or the PID (``"pid"``, and circles), as a speed command."""
+        if self._ramp is None:
+            return self._pid_command(k, obs, z)
+        t0, speed0 = self._ramp
+        speed = math.copysign(max(0.0, abs(speed0) - self.settings.brake_accel * (k * self.dt - t0)), speed0)
+        limit = self.params.max_accel
+        self.commands[k] = float(np.clip((speed - float(z[REDUCED.theta_dot])) / self.dt, -limit, limit))
+        self.commands.pop(k - 50, None)
+        return Command(speed=speed)
+
+    def _pid_command(self, k: int, obs: Observation, z) -> Command:
+        """The paper's PID on the current goal (the stop in progress, or the circle), as a speed command.
+
+        The plant's speed loop turns the speed into an acceleration with the current driving speed; the
+        NMPC's own record of the command (for its delay compensation) uses the predicted driving speed.
+        """
+        goal = self.segment if isinstance(self.mission, Waypoints) else -1
+        if self._pid is None or self._pid_goal != goal:
+            from rollbot_oc.control.pid import QuasiStablePID
+
+            mission = self.mission if goal < 0 else Waypoints(
+                (self.reference.segments[self.segment][1]["stop"],), stop_tolerance=self.mission.stop_tolerance)
+            self._pid, self._pid_goal, self._pid_fresh = QuasiStablePID(
+                mission, self.params, dt=self.dt, radius_map=self.map), goal, True
+        if self._pid_fresh:  # take over smoothly from the current driving speed
+            self._pid.reset()
+            self._pid.omega_cmd = max(float(z[REDUCED.theta_dot]), 0.0)
+            self._pid_fresh = False
+        speed = self._pid(obs).speed
+        limit = self.params.max_accel  # the plant's motor cannot follow faster either
+        self.commands[k] = float(np.clip((speed - float(z[REDUCED.theta_dot])) / self.dt, -limit, limit))
+        self.commands.pop(k - 50, None)
+        return Command(speed=speed)
+
+    def report(self) -> dict:
+        """Solve-time statistics (s), solver statuses, fallback counts, stops and plans."""
+        times = np.array(self.log["solve_times"]) if self.log["solve_times"] else np.zeros(1)
+        statuses = {}
+        for st in self.log["statuses"]:
+            statuses[st] = statuses.get(st, 0) + 1
+        legs = [seg for seg in self.reference.segments if seg is not None] if self.reference else []
+        plans = [seg[0].to_dict() for seg in legs]
+        plan_times = np.array(self.log["plan_solve_times"]) if self.log["plan_solve_times"] else np.zeros(1)
+        return {
+            "stops": list(self.stops),
+            "solver": self.settings.solver,
+            "solves": len(self.log["solve_times"]),
+            "solve_time_min": float(times.min()),
+            "solve_time_median": float(np.median(times)),
+            "solve_time_p95": float(np.percentile(times, 95)),
+            "solve_time_max": float(times.max()),
+            "solver_statuses": statuses,
+            "failed_solves": self.log["failed"],
+            "late_solves": self.log["late"],
+            "fallback_shifted": self.log["fallback_shifted"],
+            "fallback_pid": self.log["fallback_pid"],
+            "fallback_brake": self.log["fallback_brake"],
+            "plan_time": self.plan_time,
+            "stop_replans": self.log["replans"],
+            "brakes": self.log["brakes"],
+            "stones": self.log["stones"],
+            "plans_unfit": self.log["unfit"],
+            "plans": plans,
+            "plan_duration": float(sum(seg[0].T for seg in legs)) if legs else None,
+            "plan_solves": len(self.log["plan_solve_times"]),
+            "plan_failures": self.log["plan_failures"],
+            "plan_late": self.log["plan_late"],
+            "plan_wait": self.log["plan_wait"],
+            "plan_solve_time_median": float(np.median(plan_times)),
+            "plan_solve_time_max": float(plan_times.max()),
+            "tilt_estimate": self.estimator.tilt.tolist(),
+        }
+
+
+@functools.lru_cache(maxsize=8)
+def _rest_to_rest(params: RollbotParams, settings: OCPSettings) -> RestToRest:
+    return RestToRest(params, settings)
+
+
+@functools.lru_cache(maxsize=8)
+def _orbit_entry(radius: float, params: RollbotParams, settings: OCPSettings) -> OrbitEntry:
+    return OrbitEntry(radius, params, settings)

@@ -1,0 +1,280 @@
+"""Settings of the NMPC: its horizon, tracking weights, limits, fallbacks and planning (SI units)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rollbot_oc.control.ocp import OCPSettings
+
+__all__ = ["TrackingWeights", "NMPCSettings"]
+
+
+@dataclass(frozen=True)
+class TrackingWeights:
+    """Weights of the NMPC's least-squares tracking cost.
+
+    Attributes
+    ----------
+    position : float
+        Position deviation from the plan, 1/m^2.
+    attitude : float
+        Pendulum-frame quaternion deviation.
+    omega : float
+        Shell angular-velocity deviation, s^2/rad^2.
+    speed : float
+        Driving-speed deviation, s^2/rad^2.
+    accel : float
+        Motor-acceleration deviation, s^4/rad^4.
+    radial : float
+        Circles: distance from the target circle, 1/m^2 (0 for waypoints).
+    terminal : float
+        Factor on the state weights at the end of the horizon.
+    """
+
+    position: float = 400.0
+    attitude: float = 20.0
+    omega: float = 0.2
+    speed: float = 0.02
+    accel: float = 0.02
+    radial: float = 0.0
+    terminal: float = 5.0
+
+    @classmethod
+    def for_waypoints(cls) -> "TrackingWeights":
+        """Stops: a firm hold on position, most of all at the end of the horizon (measured: it keeps
+        every stop within 3.5 cm with the plant's masses and damping 10 % off the model)."""
+        return cls(position=1500.0, terminal=20.0, omega=40.0)
+
+    @classmethod
+    def for_holding(cls) -> "TrackingWeights":
+        """At a stop, once its leg has ended: damp the motion and keep the motor quiet rather than chase
+        the last centimetres (a firm hold on position turns measurement noise into motor jitter)."""
+        return cls(position=200.0, terminal=20.0, omega=40.0, speed=2.0, accel=0.5)
+
+    @classmethod
+    def for_braking(cls) -> "TrackingWeights":
+        """Recovery: bring the robot to rest wherever that happens (the motion weighted, position and attitude
+        only a little, to keep the QP's Hessian regular; the motor's acceleration as at a stop: with less, the
+        brake of a heavy pendulum chatters between the motor's limits)."""
+        return cls(position=1.0, attitude=0.1, omega=40.0, speed=1.0, accel=0.5, terminal=20.0)
+
+    @classmethod
+    def for_circles(cls) -> "TrackingWeights":
+        """Circles: the distance from the circle matters, not the point on it (the reference is re-phased)."""
+        return cls(position=400.0, radial=4000.0, terminal=5.0)
+
+    def diagonal(self, N: int) -> np.ndarray:
+        """Gauss-Newton weights of every decision variable ``(Z (10, N+1) by node, U (N,))``."""
+        wz = np.array([self.position] * 2 + [self.attitude] * 4 + [self.omega] * 3 + [self.speed])
+        scale = np.ones(N + 1)
+        scale[-1] = self.terminal
+        return np.concatenate([np.outer(scale, wz).ravel(), np.full(N, self.accel)])
+
+
+@dataclass(frozen=True)
+class NMPCSettings:
+    """Horizon, weights, limits and fallbacks of the NMPC (SI units).
+
+    Attributes
+    ----------
+    N : int
+        Shooting intervals of the horizon.
+    h : float
+        Interval length and replanning period, s.
+    substeps : int
+        RK4 steps per interval in the prediction.
+    solver : {"rti", "ipopt"}
+        ``"rti"`` (default, chosen by measurement: 2.6 to 4 ms per solve,
+        p95 under 5 ms) or ``"ipopt"`` (converged every period; 0.1 to 0.5 s
+        per solve on a 2-core machine, so too slow for 10 Hz replanning there:
+        its late solves fall back).
+    waypoint_weights, hold_weights, circle_weights : TrackingWeights
+        Tracking weights on the way to a stop, holding at it once its leg has
+        ended, and on circles (defaults in ``TrackingWeights.for_waypoints``,
+        ``for_holding`` and ``for_circles``).
+    torque_margin : float
+        Fraction of the torque limit the NMPC may use.
+    normal_margin : float
+        Least normal force as a fraction of the weight.
+    friction_margin : float
+        Largest tangential force as a fraction of ``mu`` times the normal force.
+    max_failures : int
+        Consecutive failed or late solves before the PID takes over.
+    fallback : {"brake", "pid"}
+        What takes over after ``max_failures`` failed solves on a course of
+        stops: ``"brake"`` ramps the motor to a stop (the robot comes to rest
+        as a ball with a hanging mass, then gets a new leg from there),
+        ``"pid"`` the paper's PID towards the current stop for ``pid_time``.
+        Circles always fall back to the PID.
+    pid_time : float
+        How long the PID keeps control after taking over, s.
+    estimate_tilt : bool
+        Estimate the floor tilt (offset-free); off gives the nominal model.
+    tilt_process_noise : float
+        Random-walk rate of the tilt estimate, 1/sqrt(s).
+    gyro_sigma : float
+        Assumed one-step prediction error of the angular velocity, rad/s.
+    tilt_model_error : float
+        Assumed relative error of the model's one-step change of the angular
+        velocity (``TiltEstimator.model_error``).
+    hold_time : float
+        How long after a leg's plan ends a robot nearly at rest (see
+        ``recover_speed``) outside its stop's tolerance waits before it gets a
+        new leg to the same stop, s (it never moves on from a stop it has not
+        reached).
+    replan_distance, replan_interval : float
+        A robot pushed more than ``replan_distance`` (m) off its plan gets a
+        new leg to its stop from where it is, at most once per
+        ``replan_interval`` (s).
+    brake_weights : TrackingWeights
+        A robot pushed off its plan is first brought to rest: the NMPC tracks
+        rest where the robot is with these weights (motion only, no position;
+        ``TrackingWeights.for_braking``).  Its new leg is planned once it is at
+        rest (shell-centre speed below ``recover_speed``, m/s, driving speed
+        below ``recover_drive``, rad/s) or after ``brake_wait`` s: a leg planned
+        from rest converges, one from a tumbling robot often does not.
+    recover_speed, recover_drive, brake_wait : float
+        See ``brake_weights``.
+    brake_accel : float
+        If the braking solves fail (``max_failures`` in a row), the motor's
+        speed is ramped to zero at this rate, rad/s^2, for a moment before
+        the NMPC tries again.
+    replan_angle : float
+        A leg planned ahead is followed only if the robot's attitude at the
+        stop is within this angle of the one it was planned from (and its
+        position within ``replan_distance``); else the leg is planned from
+        where the robot is, rad.
+    finish_hold : float
+        After the last stop is reached, the NMPC holds the robot there this
+        long before it reports ``done`` (the run then ends), s.
+    hold_radius : float
+        At the end of a leg within this distance of its stop (m), the NMPC holds
+        the robot where it arrived (damping its motion) instead of chasing the
+        last centimetres.
+    plan_handover : float
+        A leg planned from where the robot is (the first, or a replan) starts at
+        once on the quasi-stable guess (a full-model simulation); the
+        minimum-time leg refined from it takes over this long after, from where
+        the guess then is, s.
+    tilt_settle : float
+        The first leg's refinement is planned this long after the start, once
+        the floor tilt estimate has settled (a plan on the level floor misses
+        a slope's pull), s.
+    plan_ahead : float
+        The next leg is planned (from the rest state the current leg ends in,
+        on the tilt estimated by then) when this fraction of the current leg
+        has gone by, so that it is ready at the stop.
+    caution, caution_floor : float
+        After each recovery (``brakes``) on a run, later legs planned from rest
+        (not the refinements of a guess, which start moving) are planned with
+        their driving-speed and acceleration limits scaled by ``caution`` once
+        more, down to ``caution_floor``: a robot that could not follow its plans
+        gets gentler ones.
+    plan_starts : int
+        A leg planned ahead is solved from this many quasi-stable guesses, and
+        the fastest result is kept.
+    stone_distance : float
+        A leg from rest to a stop farther than this that cannot be planned is
+        planned instead to a stepping stone this far towards the stop (a
+        shorter leg converges far more often on a robot whose revolving
+        radii are small); from the stone, the leg is planned again, m.
+    plan_iteration_time, plan_guess_time : float
+        Modelled compute time of one IPOPT iteration of a leg's plan, and of
+        the quasi-stable guesses of a leg planned ahead, s: a plan is used only
+        once that much simulated time has passed after it was started (with
+        ``realtime``, its measured wall-clock time instead).
+    entry_times : tuple of float
+        Circles: durations tried, in order, for the planned entry onto the
+        orbit (least effort in that time), s.
+    max_solve_time : float or None
+        A solve that takes longer counts as late and is not used; ``None``
+        means the period ``h`` (real time).  A larger value studies the
+        controller without the real-time constraint.
+    realtime : bool
+        Judge lateness by the wall clock (hardware in the loop).  Off (the
+        default), a solve is judged by its modelled compute time
+        (``rti_step_time`` per RTI step, ``ipopt_iteration_time`` per IPOPT
+        iteration), so a simulated run does not depend on how busy the
+        machine is; the measured wall-clock times are still reported.
+    rti_step_time, ipopt_iteration_time : float
+        The modelled compute times, s (the benchmark's figures on a 2-core
+        machine, rounded up).
+    compiled : bool or None
+        RTI: evaluate the interval linearisation as compiled C
+        (``rollbot_oc.codegen``); ``None`` uses it when a C compiler exists.
+    plan : OCPSettings
+        Settings of the minimum-time legs (a coarser grid than the offline
+        default, compiled stage functions, 15 % of the motor's acceleration
+        left to the feedback, and at most 150 IPOPT iterations per start: a
+        start that has not converged by then seldom does, and the robot waits
+        for the plans it gets from rest).
+    entry : OCPSettings
+        Settings of a circle's entry onto its orbit (its ``N`` follows the entry time).
+    """
+
+    N: int = 30
+    h: float = 0.1
+    substeps: int = 2
+    solver: str = "rti"
+    waypoint_weights: "TrackingWeights" = None
+    hold_weights: "TrackingWeights" = None
+    circle_weights: "TrackingWeights" = None
+    torque_margin: float = 0.95
+    normal_margin: float = 0.1
+    friction_margin: float = 0.95
+    max_failures: int = 3
+    fallback: str = "brake"
+    pid_time: float = 2.0
+    estimate_tilt: bool = True
+    tilt_process_noise: float = 0.01
+    gyro_sigma: float = 2e-3
+    tilt_model_error: float = 0.1
+    hold_time: float = 1.0
+    hold_radius: float = 0.05
+    replan_distance: float = 0.15
+    replan_angle: float = 0.2
+    finish_hold: float = 1.0
+    replan_interval: float = 1.0
+    brake_weights: "TrackingWeights" = None
+    brake_accel: float = 15.0
+    brake_wait: float = 4.0
+    recover_speed: float = 0.02
+    recover_drive: float = 0.3
+    plan_handover: float = 2.0
+    tilt_settle: float = 0.3
+    plan_ahead: float = 0.0
+    plan_iteration_time: float = 0.015
+    plan_starts: int = 3
+    stone_distance: float = 0.6
+    caution: float = 0.9
+    caution_floor: float = 0.7
+    plan_guess_time: float = 0.5
+    entry_times: tuple = (5.0, 7.0, 10.0)
+    max_solve_time: float | None = None
+    realtime: bool = False
+    rti_step_time: float = 0.01
+    ipopt_iteration_time: float = 0.01
+    compiled: bool | None = None
+    plan: OCPSettings = field(default_factory=lambda: OCPSettings(N=40, accel_margin=0.85, compiled=True, max_iter=150))
+    entry: OCPSettings = field(default_factory=OCPSettings)
+
+    def __post_init__(self):
+        if self.waypoint_weights is None:
+            object.__setattr__(self, "waypoint_weights", TrackingWeights.for_waypoints())
+        if self.circle_weights is None:
+            object.__setattr__(self, "circle_weights", TrackingWeights.for_circles())
+        if self.hold_weights is None:
+            object.__setattr__(self, "hold_weights", TrackingWeights.for_holding())
+        if self.brake_weights is None:
+            object.__setattr__(self, "brake_weights", TrackingWeights.for_braking())
+        if self.fallback not in ("brake", "pid"):
+            raise ValueError(f"NMPC fallback = {self.fallback!r}; valid are 'brake', 'pid'")
+        if self.solver not in ("ipopt", "rti"):
+            raise ValueError(f"NMPC solver = {self.solver!r}; valid are 'ipopt', 'rti'")
+        if not (isinstance(self.N, int) and self.N >= 2):
+            raise ValueError(f"NMPC N = {self.N!r} must be a whole number >= 2")
+        if not (math.isfinite(self.h) and 0 < self.h <= 0.5):
+            raise ValueError(f"NMPC h = {self.h!r} s is out of range: valid is (0, 0.5]")

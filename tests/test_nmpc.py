@@ -115,16 +115,22 @@ def test_ipopt_route_converges_on_the_same_problem():
 
 @pytest.mark.skipif(compiler() is None, reason="no C compiler: the RTI runs on CasADi's virtual machine")
 def test_compiled_and_interpreted_linearisations_agree():
-    from rollbot_oc.control.nmpc.tracking import _stage_linearisation
-    from rollbot_oc.codegen import compiled
+    """The tracking problem's stage derivatives as compiled C equal CasADi's virtual machine on them."""
+    from rollbot_oc.control.nmpc.tracking import tracking_problem
+    from rollbot_oc.ocp.linearisation import StructuredLinearisation
+    from rollbot_oc.ocp.transcription import Transcription
 
-    f = _stage_linearisation(2, 0.95, 0.1)
-    g = compiled(f)
+    tr = Transcription(tracking_problem(N=6, h=0.1))
     rng = np.random.default_rng(1)
-    z = rng.normal(size=10)
-    z[2:6] /= np.linalg.norm(z[2:6])
-    for a, b in zip(f(z, 0.7, RollbotParams().vector()), g(z, 0.7, RollbotParams().vector())):
-        assert np.allclose(np.array(a), np.array(b), rtol=1e-12, atol=1e-12)
+    w = rng.normal(size=tr.layout.size)
+    stage = {name: rng.normal(size=(sl.stop - sl.start, 7)) for name, sl in tr.layout.stage_parameters.items()}
+    par = tr.parameter_vector(dict(x0=rng.normal(size=10), p=RollbotParams().vector(), circle=[0.1, 0.2, 0.5],
+                                   **stage))
+    a = StructuredLinearisation(tr, compiled=False)(w, par)
+    b = StructuredLinearisation(tr, compiled=True)(w, par)
+    for x, y in zip(a, b):
+        x, y = (np.array(v.nonzeros()) if hasattr(v, "nonzeros") else np.asarray(v) for v in (x, y))
+        assert np.allclose(x, y, rtol=1e-12, atol=1e-12)
 
 
 def test_estimator_and_settings_validation():

@@ -77,7 +77,11 @@ def test_plan_flies_in_the_plant(leg):
 def test_an_rti_step_from_the_converged_solution_stays_there(leg):
     ocp, _, sol, parameters = leg
     step = ocp.solver("rti", compiled=False).attempt(warm=sol, **parameters)
-    assert step.success and np.abs(step.w - sol.w).max() < 1e-4  # measured 1.2e-5: IPOPT's tolerance, 1e-8
+    # relative to each entry's size.  The Gauss-Newton curvature of the accelerations is only the small effort
+    # weight, so the QP is nearly an LP in them and small KKT errors move them: measured 1.9e-4 relative (5.5e-4
+    # rad/s^2 of 14) with IPOPT's tol 1e-8, 8e-5 with 1e-10 or 1e-12 (the limits as bounds of the QP; 1.2e-5 as
+    # its rows).  The Gauss-Newton route agrees to 1e-6 on a problem with real curvature (test_ocp_routes).
+    assert step.success and (np.abs(step.w - sol.w) / (1.0 + np.abs(sol.w))).max() < 1e-3
 
 
 def test_constraint_jacobian_agrees_with_finite_differences(leg):

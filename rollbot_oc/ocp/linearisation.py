@@ -30,26 +30,28 @@ class _Group:
     """The derivative Function of one kind of stage, mapped over its stages, with its index maps."""
 
     def __init__(self, fun: ca.Function, stages, global_columns: np.ndarray, compile_it: bool):
+        names = ("y", "v", "p", "q", "sq", "hs")
         sizes = [fun.size1_in(i) for i in range(fun.n_in())]
-        y, v, p, q, hs = (ca.SX.sym(name, n) for name, n in zip(("y", "v", "p", "q", "hs"), sizes))
-        c, l, r = fun(y, v, p, q, hs)
+        y, v, p, q, sq, hs = (ca.SX.sym(name, n) for name, n in zip(names, sizes))
+        c, l, r = fun(y, v, p, q, sq, hs)
         z = ca.vertcat(y, v)
         Jr = ca.jacobian(r, z)
-        derivatives = ca.Function(f"d_{fun.name()}", [y, v, p, q, hs],
+        derivatives = ca.Function(f"d_{fun.name()}", [y, v, p, q, sq, hs],
                                   [c, ca.jacobian(c, z), ca.mtimes(Jr.T, r) + ca.gradient(l, z),
                                    ca.triu(ca.mtimes(Jr.T, Jr) + ca.hessian(l, z)[0]), l + 0.5 * ca.sumsqr(r)],
-                                  ["y", "v", "p", "q", "hs"], ["c", "J", "grad", "H", "f"])
+                                  list(names), ["c", "J", "grad", "H", "f"])
         if compile_it:
             from rollbot_oc.codegen import compiled
 
             derivatives = compiled(derivatives)
         count = len(stages)
-        shared = [1, 2, 3]  # v, p and q are the same for every stage; y and hs are per stage
+        shared = [1, 2, 3]  # v, p and q are the same for every stage; y, sq and hs are per stage
         self.fast = FastFunction(derivatives.map(f"{derivatives.name()}_{count}", "serial", count, shared, []))
         self.values = FastFunction(fun.map(f"{fun.name()}_{count}", "serial", count, shared, []))
         self.columns = np.array([np.concatenate([st.columns, global_columns]) for st in stages])  # (count, nz)
         self.y_columns = np.array([st.columns for st in stages])
         self.hs = np.array([st.hs for st in stages])
+        self.nodes = np.array([st.index for st in stages])
         self.rows = np.concatenate([np.arange(st.rows.start, st.rows.stop) for st in stages]).astype(int)
         jr, jc = derivatives.sparsity_out(1).get_triplet()
         hr, hc = derivatives.sparsity_out(3).get_triplet()
@@ -61,15 +63,16 @@ class _Group:
         self.H_cols = self.columns[:, np.asarray(hc, int)].ravel()
         self.grad_cols = self.columns.ravel()
 
-    def evaluate(self, w, v, p, q):
-        """``(c, J values, grad values, H values, f values)`` of every stage of the group."""
+    def evaluate(self, w, v, p, q, SQ):
+        """``(c, J values, grad values, H values, f values)`` of every stage of the group; ``SQ`` the
+        stage parameters (n_stage, N+1)."""
         Y = w[self.y_columns].T  # (ny, count), column-major into the mapped Function
-        c, J, grad, H, f = self.fast(Y, v, p, q, self.hs)
+        c, J, grad, H, f = self.fast(Y, v, p, q, SQ[:, self.nodes], self.hs)
         return c, J, grad, H, f
 
-    def cost_and_rows(self, w, v, p, q):
+    def cost_and_rows(self, w, v, p, q, SQ):
         """``(c, l, r)`` of every stage (no derivatives), for line searches."""
-        return self.values(w[self.y_columns].T, v, p, q, self.hs)
+        return self.values(w[self.y_columns].T, v, p, q, SQ[:, self.nodes], self.hs)
 
 
 class StructuredLinearisation:
@@ -122,22 +125,24 @@ class StructuredLinearisation:
         return np.array([lookup[(min(r, c), max(r, c))] for r, c in zip(fr, fc)], dtype=int)
 
     def split_parameters(self, par):
+        """``(p, q, SQ)``: the model parameters, the problem's parameters and the stage parameters (n_stage, N+1)."""
         tr = self.transcription
         L = tr.layout
         p = par[L.parameters["p"]]
         q = np.concatenate([par[L.parameters[name]] for name in tr.ocp.parameters]) if tr.ocp.parameters \
             else np.zeros(0)
-        return p, q
+        SQ = np.asarray(par[L.stage_block]).reshape(L.intervals + 1, L.n_stage).T
+        return p, q, SQ
 
     def __call__(self, w, par):
         """``(H, grad, g, J, f)`` at ``w``: H and J as CasADi sparse DM, the rest numpy."""
         w = np.asarray(w, float)
-        p, q = self.split_parameters(par)
+        p, q, SQ = self.split_parameters(par)
         v = w[self._v]
         g = np.empty(self.m)
         J_vals, grad_vals, H_vals, f = [], [], [], 0.0
         for group in self.groups:
-            c, J, grad, H, fs = group.evaluate(w, v, p, q)
+            c, J, grad, H, fs = group.evaluate(w, v, p, q, SQ)
             g[group.rows] = c
             J_vals.append(J)
             grad_vals.append(grad)
@@ -153,12 +158,12 @@ class StructuredLinearisation:
     def cost_and_constraints(self, w, par):
         """``(f, g)`` at ``w`` without derivatives."""
         w = np.asarray(w, float)
-        p, q = self.split_parameters(par)
+        p, q, SQ = self.split_parameters(par)
         v = w[self._v]
         g = np.empty(self.m)
         f = 0.0
         for group in self.groups:
-            c, l, r = group.cost_and_rows(w, v, p, q)
+            c, l, r = group.cost_and_rows(w, v, p, q, SQ)
             g[group.rows] = c
             f += float(np.sum(l)) + 0.5 * float(np.sum(np.square(r)))
         return f, g

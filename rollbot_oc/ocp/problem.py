@@ -16,8 +16,9 @@
 
 Expressions are CasADi SX in the symbols of one stage: ``ocp.x`` (states),
 ``ocp.u`` (controls), ``ocp.p`` (model parameters), the problem's own
-parameters (``ocp.parameter``) and global decision variables
-(``ocp.variable``).  Where a term applies is ``at``: ``"path"`` (every
+parameters (``ocp.parameter``), stage parameters, which take a value at
+every node (``ocp.stage_parameter``: a reference to track, time-varying
+weights), and global decision variables (``ocp.variable``).  Where a term applies is ``at``: ``"path"`` (every
 interval, and for terms without controls also the last node), ``"start"``,
 ``"end"``, ``("end", phase)`` (the last node of a phase) or a node index.
 
@@ -184,6 +185,7 @@ class OCP:
         self.control = SimpleNamespace(accel=self.u[0])
         self.params = ParamView(self.p)
         self.parameters: dict[str, ca.SX] = {}
+        self.stage_parameters: dict[str, ca.SX] = {}
         self.variables: dict[str, tuple] = {}  # name -> (symbol, lower, upper, guess)
         self.costs: list[tuple] = []           # (kind, expression, at)
         self.constraints: list[tuple] = []     # (Constraint, at)
@@ -197,10 +199,26 @@ class OCP:
 
     def parameter(self, name: str, n: int = 1) -> ca.SX:
         """A named problem parameter of ``n`` entries, given at solve time (``solve(name=value)``)."""
-        if name in self.parameters or name in ("p",):
-            raise ConfigError(f"OCP: parameter {name!r} is already declared (or reserved)")
+        self._check_new_parameter(name)
         self.parameters[name] = ca.SX.sym(name, n)
         return self.parameters[name]
+
+    def stage_parameter(self, name: str, n: int = 1) -> ca.SX:
+        """A named parameter of ``n`` entries with a value at every node, given at solve time.
+
+        In a stage's expressions it stands for its value at that stage's node
+        (on the path: at the interval's first node).  ``solve(name=values)``
+        takes an array ``(n, N+1)`` (one column per node) or ``(n,)`` (the
+        same at every node).  What an NMPC tracks is a stage parameter: the
+        reference and the weights of each node of the horizon.
+        """
+        self._check_new_parameter(name)
+        self.stage_parameters[name] = ca.SX.sym(name, n)
+        return self.stage_parameters[name]
+
+    def _check_new_parameter(self, name: str):
+        if name in self.parameters or name in self.stage_parameters or name == "p":
+            raise ConfigError(f"OCP: parameter {name!r} is already declared (or reserved)")
 
     def variable(self, name: str, n: int = 1, lower=-np.inf, upper=np.inf, guess=0.0) -> ca.SX:
         """A named global decision variable of ``n`` entries (not tied to a stage), with bounds and a guess."""

@@ -88,19 +88,21 @@ class OCPSolution:
         tr = self.transcription
         ocp, L = tr.ocp, tr.layout
         qs = ca.vertcat(*ocp.parameters.values()) if ocp.parameters else ca.SX(0, 1)
+        sqs = ca.vertcat(*ocp.stage_parameters.values()) if ocp.stage_parameters else ca.SX(0, 1)
         vs = ca.vertcat(*[s for s, *_ in ocp.variables.values()]) if ocp.variables else ca.SX(0, 1)
-        fun = ca.Function("value", [ocp.x, ocp.u, ocp.p, qs, vs], [ca.SX(expr)])
+        fun = ca.Function("value", [ocp.x, ocp.u, ocp.p, qs, sqs, vs], [ca.SX(expr)])
         X, U = self.states, self.controls
+        par = self.parameters
+        SQ = np.asarray(par[L.stage_block]).reshape(L.intervals + 1, L.n_stage).T
         if at == "nodes":
             U = np.hstack([U, np.zeros((L.nu, 1))])
         elif at == "intervals":
-            X = X[:, :-1]
+            X, SQ = X[:, :-1], SQ[:, :-1]
         else:
             raise ValueError(f"at = {at!r}; valid are 'nodes', 'intervals'")
-        par = self.parameters
         q = np.concatenate([par[L.parameters[name]] for name in ocp.parameters]) if ocp.parameters else np.zeros(0)
         v = np.concatenate([self.variable(name) for name in ocp.variables]) if ocp.variables else np.zeros(0)
-        out = fun.map(X.shape[1])(X, U, par[L.parameters["p"]], q, v)
+        out = fun.map(X.shape[1])(X, U, par[L.parameters["p"]], q, SQ, v)
         return np.array(out)
 
     def check(self) -> "OCPSolution":

@@ -22,6 +22,14 @@ apply.  The cost is
 
 and ``general`` (everything but the least squares) and ``residuals`` are also
 kept apart for the Gauss-Newton routes.
+
+Simple bounds.  A hard path constraint whose every row is affine in a
+single state or control, ``lower <= c(p) x_i + e(p) <= upper`` with ``c``
+and ``e`` functions of the parameters only (the driving-speed and motor
+limits of ``rollbot_oc.ocp.constraints``, a position box), becomes a bound
+on that entry of ``w`` instead of a row of ``g`` (as acados' ``idxbx`` and
+``idxbu``): QP solvers treat bounds separately and more robustly.  The bounds
+then depend on the parameters: ``Transcription.bounds(par)``.
 """
 
 from __future__ import annotations
@@ -56,6 +64,11 @@ class Layout:
         Slacks of soft node constraints in ``w``.
     parameters : dict
         Name -> slice of the parameter vector (``"p"`` first: the model parameters).
+    stage_parameters : dict
+        Name -> slice of one node's stage-parameter column.
+    stage_block : slice
+        Where the stage parameters sit in the parameter vector: a column of
+        ``n_stage`` entries per node, node after node.
     """
 
     nx: int
@@ -67,6 +80,13 @@ class Layout:
     variables: dict
     node_slacks: slice
     parameters: dict
+    stage_parameters: dict
+    stage_block: slice
+
+    @property
+    def n_stage(self) -> int:
+        """Stage-parameter entries per node."""
+        return sum(sl.stop - sl.start for sl in self.stage_parameters.values())
 
     @property
     def stage(self) -> int:
@@ -145,13 +165,14 @@ class Stage:
     index : int
         Node index ``k``.
     function : casadi.Function
-        ``(y, v, p, q, hs) -> (c, l, r)``: the stage's constraint rows, its
+        ``(y, v, p, q, sq, hs) -> (c, l, r)``: the stage's constraint rows, its
         general cost and its least-squares residuals, from its local vector
         ``y`` (``x_k, tau_k, u_k, s_k, x_{k+1}, tau_{k+1}``, then the slacks of
         its soft node constraints; the last node has ``x_N, tau_N`` and its
         slacks), the global variables ``v``, the model parameters ``p``, the
-        problem's parameters ``q`` and ``hs`` (the interval length, or
-        ``1 / N_phase`` when durations are free: ``h = tau_k hs``).
+        problem's parameters ``q``, the stage parameters of its node ``sq``
+        and ``hs`` (the interval length, or ``1 / N_phase`` when durations are
+        free: ``h = tau_k hs``).
     columns : numpy.ndarray of int
         Where ``y`` sits in ``w``.
     rows : slice
@@ -197,7 +218,9 @@ class Transcription:
         m = ocp.model
         nx, nu = m.nx, m.nu
         path = [c for c, at in ocp.constraints if at == "path"]
-        self._hard_path = [c for c in path if c.soft is None]
+        self._simple = [b for b in (_simple_bound(c, ocp) for c in path if c.soft is None) if b is not None]
+        simple = {id(b.constraint) for b in self._simple}
+        self._hard_path = [c for c in path if c.soft is None and id(c) not in simple]
         self._soft_path = [c for c in path if c.soft is not None]
         n_soft_path = sum(c.expr.numel() for c in self._soft_path)
         nt = int(any(isinstance(t, FreeTime) for t in ocp.durations))
@@ -213,6 +236,12 @@ class Transcription:
         for name, sym in ocp.parameters.items():
             params[name] = slice(offset, offset + sym.numel())
             offset += sym.numel()
+        stage_params, n_sq = {}, 0
+        for name, sym in ocp.stage_parameters.items():
+            stage_params[name] = slice(n_sq, n_sq + sym.numel())
+            n_sq += sym.numel()
+        stage_block = slice(offset, offset + n_sq * (n + 1))
+        offset = stage_block.stop
         phase_of = np.repeat(np.arange(len(ocp.N)), ocp.N)
         firsts = np.concatenate([[0], np.cumsum(ocp.N)[:-1]]).astype(int)
         # node terms: hard constraints, soft constraints and costs at each node
@@ -229,12 +258,13 @@ class Transcription:
         n_slacks = sum(c.expr.numel() for k in soft for c in soft[k])
         node_slacks = slice(cursor, cursor + n_slacks)
         self.layout = L = Layout(nx, nt, nu, n_soft_path, tuple(ocp.N), tuple(ocp.durations), variables,
-                                 node_slacks, params)
+                                 node_slacks, params, stage_params, stage_block)
         self._symbols = _Symbols(ocp, nt, n_soft_path)
         linked = {k for k in range(n) if k + 1 == n or phase_of[k + 1] == phase_of[k]} if nt else set()
 
         # -- the stages ------------------------------------------------------------------------
         functions, self.stages, row, slack = {}, [], 0, node_slacks.start
+        self._named_rows: dict[str, list] = {}
         for k in range(n + 1):
             last = k == n
             phase = phase_of[min(k, n - 1)]
@@ -244,7 +274,9 @@ class Transcription:
             if key not in functions:
                 duration = None if nt else float(ocp.durations[phase])
                 functions[key] = self._stage_function(last, k in linked, first, hard[k], soft[k], costs[k], duration)
-            fun, lower, upper = functions[key]
+            fun, lower, upper, names = functions[key]
+            for name, local_rows in names.items():
+                self._named_rows.setdefault(name, []).append(row + local_rows)
             n_e = sum(c.expr.numel() for c in soft[k])
             local = (np.arange(k * stage, k * stage + nx + nt) if last else
                      np.arange(k * stage, (k + 1) * stage + nx + nt))
@@ -260,11 +292,13 @@ class Transcription:
         p = par[params["p"]]
         q = ca.vertcat(*[par[params[name]] for name in ocp.parameters]) if ocp.parameters else ca.MX(0, 1)
         v = ca.vertcat(*[w[variables[name]] for name in ocp.variables]) if ocp.variables else ca.MX(0, 1)
+        SQ = ca.reshape(par[stage_block], n_sq, n + 1)
         c_of, l_of, r_of = {}, {}, {}
         for fun, group in self.groups():
             Y = ca.reshape(w[np.concatenate([st.columns for st in group]).tolist()], group[0].columns.size,
                            len(group))
-            C, Lc, R = fun.map(len(group))(Y, v, p, q, ca.DM([st.hs for st in group]).T)
+            C, Lc, R = fun.map(len(group))(Y, v, p, q, SQ[:, [st.index for st in group]],
+                                           ca.DM([st.hs for st in group]).T)
             for j, st in enumerate(group):
                 c_of[st.index], l_of[st.index], r_of[st.index] = C[:, j], Lc[:, j], R[:, j]
         self.w, self.par = w, par
@@ -275,6 +309,8 @@ class Transcription:
         self.residuals = ca.vertcat(*[r_of[k] for k in range(n + 1)])
         self.f = self.general + 0.5 * ca.sumsqr(self.residuals)
         self.lbw, self.ubw = self._variable_bounds(phase_of)
+        self._bound_places = self._simple_bound_places()
+        self._bound_cache = (None, None)
         self.global_columns = np.concatenate([np.arange(sl.start, sl.stop) for sl in variables.values()]
                                              ).astype(int) if variables else np.zeros(0, int)
 
@@ -285,8 +321,81 @@ class Transcription:
             out.setdefault(id(st.function), (st.function, []))[1].append(st)
         return list(out.values())
 
+    def _simple_bound_places(self):
+        """``(columns of w, index of the coefficient row)`` of every simple bound, node by node."""
+        L, n = self.layout, self.layout.intervals
+        columns, which, row = [], [], 0
+        for b in self._simple:
+            local = np.where(b.is_control, L.nx + L.nt + b.index - L.nx, b.index)
+            nodes = n + 1 if not b.is_control.any() else n  # controls have no last node
+            for k in range(nodes):
+                columns.append(k * L.stage + local)
+                which.append(row + np.arange(local.size))
+            row += local.size
+        if not columns:
+            return np.zeros(0, int), np.zeros(0, int)
+        return np.concatenate(columns).astype(int), np.concatenate(which).astype(int)
+
+    def _bound_function(self) -> ca.Function:
+        """``(p, q) -> (lower, upper)`` of the simple bounds' entries of ``w`` (one row per bound row)."""
+        ocp = self.ocp
+        q = ca.vertcat(*ocp.parameters.values()) if ocp.parameters else ca.SX(0, 1)
+        lows, highs = [], []
+        for b in self._simple:
+            lo, hi = (ca.DM(b.constraint.lower) - b.offset) / b.scale, (ca.DM(b.constraint.upper) - b.offset) / b.scale
+            lows.append(ca.fmin(lo, hi))  # a negative coefficient turns the bounds round
+            highs.append(ca.fmax(lo, hi))
+        return ca.Function("simple_bounds", [ocp.p, q], [ca.vertcat(*lows), ca.vertcat(*highs)])
+
+    def bounds(self, par) -> tuple[np.ndarray, np.ndarray]:
+        """``(lbw, ubw)`` of the decision vector for the parameter vector ``par`` (simple bounds included)."""
+        columns, which = self._bound_places
+        if not columns.size:
+            return self.lbw, self.ubw
+        par = np.asarray(par, float)
+        key = par[:self.layout.stage_block.start].tobytes()
+        if self._bound_cache[0] != key:
+            if "_bounds_fun" not in self.__dict__:
+                self._bounds_fun = self._bound_function()
+            L = self.layout
+            q = np.concatenate([par[L.parameters[name]] for name in self.ocp.parameters]) \
+                if self.ocp.parameters else np.zeros(0)
+            lo, hi = (np.array(v).ravel() for v in self._bounds_fun(par[L.parameters["p"]], q))
+            lbw, ubw = self.lbw.copy(), self.ubw.copy()
+            lbw[columns] = np.maximum(lbw[columns], lo[which])
+            ubw[columns] = np.minimum(ubw[columns], hi[which])
+            self._bound_cache = (key, (lbw, ubw))
+        return self._bound_cache[1]
+
+    def bounds_symbolic(self, par: ca.MX) -> tuple[ca.MX, ca.MX]:
+        """``bounds`` as CasADi expressions of a symbolic parameter vector (for ``to_function``)."""
+        columns, which = self._bound_places
+        lbw, ubw = ca.MX(ca.DM(self.lbw)), ca.MX(ca.DM(self.ubw))
+        if not columns.size:
+            return lbw, ubw
+        L = self.layout
+        q = ca.vertcat(*[par[L.parameters[name]] for name in self.ocp.parameters]) if self.ocp.parameters \
+            else ca.MX(0, 1)
+        lo, hi = self._bound_function()(par[L.parameters["p"]], q)
+        lbw[columns.tolist()] = ca.fmax(lbw[columns.tolist()], lo[which.tolist()])
+        ubw[columns.tolist()] = ca.fmin(ubw[columns.tolist()], hi[which.tolist()])
+        return lbw, ubw
+
+    def rows_of(self, name: str) -> np.ndarray:
+        """Rows of ``g`` (indices) that belong to the constraints named ``name``, at every node.
+
+        Raises
+        ------
+        ConfigError
+            If no constraint has that name.
+        """
+        if name not in self._named_rows:
+            raise ConfigError(f"no constraint named {name!r}; named are {', '.join(sorted(self._named_rows))}")
+        return np.concatenate(self._named_rows[name]).astype(int)
+
     def _stage_function(self, last, linked, first, hard, soft, costs, duration):
-        """The SX Function ``(y, v, p, q, hs) -> (c, l, r)`` of one kind of stage, with the bounds of ``c``."""
+        """The SX Function ``(y, v, p, q, sq, hs) -> (c, l, r)`` of one kind of stage, with the bounds of ``c``
+        and the local rows of each named hard constraint."""
         ocp, S = self.ocp, self._symbols
         m = ocp.model
         e = ca.SX.sym("e", sum(c.expr.numel() for c in soft))
@@ -301,9 +410,9 @@ class Transcription:
             rows.append((gap, np.zeros(m.nx), np.zeros(m.nx)))
             if linked:  # a phase's duration is the same at each of its nodes
                 rows.append((S.tau_next - S.tau, np.zeros(1), np.zeros(1)))
-        rows += [(c.expr, c.lower, c.upper) for c in hard]
+        rows += [(c.expr, c.lower, c.upper, c.name) for c in hard]
         if not last:
-            rows += [(c.expr, c.lower, c.upper) for c in self._hard_path]
+            rows += [(c.expr, c.lower, c.upper, c.name) for c in self._hard_path]
             soft_rows, lb, ub, cost, res = _soft_rows(self._soft_path, S.s)
             rows.append((soft_rows, lb, ub))
             general += [h * sum((x for kind, x, at in ocp.costs if kind == "general" and at == "path"), ca.SX(0)),
@@ -322,10 +431,16 @@ class Transcription:
         c = ca.vertcat(*[r[0] for r in rows])
         lower = np.concatenate([np.broadcast_to(r[1], (r[0].numel(),)) for r in rows])
         upper = np.concatenate([np.broadcast_to(r[2], (r[0].numel(),)) for r in rows])
-        fun = ca.Function("last_node" if last else "stage", [y, S.v, ocp.p, S.q, S.hs],
+        names, start = {}, 0
+        for r in rows:
+            size = r[0].numel()
+            if len(r) > 3:
+                names.setdefault(r[3], []).extend(range(start, start + size))
+            start += size
+        fun = ca.Function("last_node" if last else "stage", [y, S.v, ocp.p, S.q, S.sq, S.hs],
                           [c, sum(general[1:], general[0]), ca.vertcat(*residuals) if residuals else ca.SX(0, 1)],
-                          ["y", "v", "p", "q", "hs"], ["c", "l", "r"])
-        return fun, lower, upper
+                          ["y", "v", "p", "q", "sq", "hs"], ["c", "l", "r"])
+        return fun, lower, upper, {name: np.array(rows_, int) for name, rows_ in names.items()}
 
     @staticmethod
     def _node(at, firsts, n) -> int:
@@ -370,11 +485,25 @@ class Transcription:
             If a parameter is missing, unknown or of the wrong size.
         """
         L = self.layout
-        unknown = sorted(set(values) - set(L.parameters))
+        declared = list(L.parameters) + list(L.stage_parameters)
+        unknown = sorted(set(values) - set(declared))
         if unknown:
             raise ConfigError(f"unknown OCP parameter(s) {', '.join(unknown)}; declared are "
-                              f"{', '.join(L.parameters)}")
+                              f"{', '.join(declared)}")
         out = np.empty(self.par.numel())
+        nodes = L.intervals + 1
+        column = out[L.stage_block].reshape(nodes, L.n_stage)  # a view: node after node
+        for name, rows in L.stage_parameters.items():
+            n_rows = rows.stop - rows.start
+            if name not in values:
+                raise ConfigError(f"OCP stage parameter {name!r} ({n_rows} per node) was not given")
+            value = np.asarray(values[name], float)
+            if value.size == n_rows:
+                value = np.repeat(value.reshape(n_rows, 1), nodes, axis=1)
+            if value.shape != (n_rows, nodes) and value.size != n_rows * nodes:
+                raise ConfigError(f"OCP stage parameter {name!r} has shape {value.shape}, expected "
+                                  f"({n_rows}, {nodes}) or ({n_rows},)")
+            column[:, rows] = value.reshape(n_rows, nodes).T
         for name, index in L.parameters.items():
             if name not in values:
                 raise ConfigError(f"OCP parameter {name!r} ({index.stop - index.start} entries) was not given")
@@ -396,6 +525,41 @@ class Transcription:
     def durations_of(self, w) -> np.ndarray:
         """Phase durations (s) of a decision vector."""
         return self.layout.phase_durations(w)
+
+
+@dataclass(frozen=True)
+class _SimpleBound:
+    """A hard path constraint that bounds single entries: row i is ``scale_i(p) * z[index_i] + offset_i(p)``."""
+
+    constraint: Constraint
+    index: np.ndarray       # entry of (x, u) each row bounds
+    is_control: np.ndarray  # whether that entry is a control
+    scale: ca.SX
+    offset: ca.SX
+
+
+def _simple_bound(c: Constraint, ocp: OCP):
+    """The ``_SimpleBound`` of ``c`` if every row is affine in one state or control with coefficients of the
+    model and problem parameters only, else None."""
+    xu = ca.vertcat(ocp.x, ocp.u)
+    others = [s for s in list(ocp.stage_parameters.values()) + [sym for sym, *_ in ocp.variables.values()]]
+    if any(ca.depends_on(c.expr, s) for s in others):
+        return None
+    J = ca.jacobian(c.expr, xu)
+    if ca.depends_on(J, xu):
+        return None
+    index = []
+    for i in range(c.expr.numel()):
+        cols = [j for j in range(xu.numel()) if not J[i, j].is_zero()]
+        if len(cols) != 1:
+            return None
+        index.append(cols[0])
+    if len(set(index)) != len(index):
+        return None
+    index = np.array(index, int)
+    scale = ca.vertcat(*[J[i, j] for i, j in enumerate(index)])
+    offset = ca.substitute(c.expr, xu, ca.SX.zeros(xu.numel()))
+    return _SimpleBound(c, index, index >= ocp.model.nx, scale, offset)
 
 
 def _soft_rows(constraints: list[Constraint], slacks, values=None):
@@ -425,4 +589,5 @@ class _Symbols:
         self.s = ca.SX.sym("s", n_soft_path)
         self.hs = ca.SX.sym("hs")
         self.q = ca.vertcat(*ocp.parameters.values()) if ocp.parameters else ca.SX(0, 1)
+        self.sq = ca.vertcat(*ocp.stage_parameters.values()) if ocp.stage_parameters else ca.SX(0, 1)
         self.v = ca.vertcat(*[sym for sym, *_ in ocp.variables.values()]) if ocp.variables else ca.SX(0, 1)

@@ -417,7 +417,7 @@ class NMPC:
         if ok and not late:
             _, U = self.solver.split(x)
             self.current = (U, k)
-            self.warm = (self._shift(x), *lam)  # duals unshifted: the structure repeats every interval
+            self.warm = (self.solver.shift(x), *lam)  # duals unshifted: the structure repeats every interval
             self.failures = 0
             return
         self.log["late" if ok else "failed"] += 1
@@ -458,12 +458,6 @@ class NMPC:
                 return
             self._anchor = z[REDUCED.position].copy()
         Zr[REDUCED.position, :] = self._anchor[:, None]
-
-    def _shift(self, x):
-        Z, U = self.solver.split(x)
-        Zs = np.hstack([Z[:, 1:], Z[:, -1:]])
-        Us = np.concatenate([U[1:], U[-1:]])
-        return np.concatenate([Zs.T.ravel(), Us])
 
     def _fallback_command(self, k: int, obs: Observation, z) -> Command:
         """After ``max_failures`` failed solves: the motor's speed ramped to zero (``fallback = "brake"``),

@@ -96,7 +96,10 @@ class NMPCSettings:
         ended, and on circles (defaults in ``TrackingWeights.for_waypoints``,
         ``for_holding`` and ``for_circles``).
     torque_margin : float
-        Fraction of the torque limit the NMPC may use.
+        Fraction of the torque limit the tracking NMPC may use (more than the
+        plans it tracks, ``plan.torque_margin``: the rest is the feedback's).
+    speed_margin : float
+        Fraction of the driving-speed limit the tracking NMPC may use.
     normal_margin : float
         Least normal force as a fraction of the weight.
     friction_margin : float
@@ -223,6 +226,7 @@ class NMPCSettings:
     hold_weights: "TrackingWeights" = None
     circle_weights: "TrackingWeights" = None
     torque_margin: float = 0.95
+    speed_margin: float = 0.98
     normal_margin: float = 0.1
     friction_margin: float = 0.95
     max_failures: int = 3

@@ -39,15 +39,22 @@ class NLPRoute:
         """Solve to convergence; raises ``NotConverged`` (with the failed solution) if it does not."""
         return self.attempt(guess, warm, **parameters).check()
 
-    def attempt(self, guess=None, warm: OCPSolution | None = None, **parameters) -> OCPSolution:
-        """Solve and return the solution whatever its status (check ``success``)."""
+    def attempt(self, guess=None, warm: OCPSolution | None = None, multipliers=None, **parameters) -> OCPSolution:
+        """Solve and return the solution whatever its status (check ``success``).
+
+        ``guess``: a decision vector to start from, with ``multipliers = (lam_w, lam_g)`` if given;
+        ``warm``: a solution to start from (its multipliers too); ``parameters``: by name.
+        """
         tr = self.transcription
         par = tr.parameter_vector(parameters)
-        args = dict(p=par, lbx=tr.lbw, ubx=tr.ubw, lbg=tr.lbg, ubg=tr.ubg)
+        lbw, ubw = tr.bounds(par)
+        args = dict(p=par, lbx=lbw, ubx=ubw, lbg=tr.lbg, ubg=tr.ubg)
         if warm is not None:
             args.update(x0=warm.w, lam_x0=warm.lam_w, lam_g0=warm.lam_g)
         else:
             args["x0"] = tr.default_guess() if guess is None else np.asarray(guess, float)
+            if multipliers is not None and multipliers[0] is not None:
+                args.update(lam_x0=multipliers[0], lam_g0=multipliers[1])
         start = time.perf_counter()
         sol = call_nlp(self.solver, args)
         return nlp_solution(self.name, self.solver, tr, sol, par, time.perf_counter() - start)
@@ -56,7 +63,8 @@ class NLPRoute:
         """``(w_guess, par) -> w``: the solve as a CasADi Function."""
         tr = self.transcription
         w0, par = ca.MX.sym("w0", tr.w.numel()), ca.MX.sym("par", tr.par.numel())
-        sol = self.solver(x0=w0, p=par, lbx=tr.lbw, ubx=tr.ubw, lbg=tr.lbg, ubg=tr.ubg)
+        lbw, ubw = tr.bounds_symbolic(par)
+        sol = self.solver(x0=w0, p=par, lbx=lbw, ubx=ubw, lbg=tr.lbg, ubg=tr.ubg)
         return ca.Function(f"ocp_{self.name}_solve", [w0, par], [sol["x"]], ["w0", "par"], ["w"])
 
 

@@ -13,7 +13,10 @@ written by hand.  The QP
     min 0.5 d^T H d + grad^T d   s.t.  lbg - g <= J d <= ubg - g,  lbw - w <= d <= ubw - w
 
 is solved by a CasADi conic solver, warm-started from the previous active
-set.  ``SQPRoute`` iterates to convergence with a backtracking line search on
+set (and once more cold if that fails).  A QP that no step can satisfy may
+be solved once more without the constraints named in ``relax`` (an NMPC
+whose measured state no command keeps within a torque or contact limit
+still gets a command; the status says ``relaxed (...)``).  ``SQPRoute`` iterates to convergence with a backtracking line search on
 the L1 merit function; ``RTIRoute`` takes one full step per call from a warm
 start, as real-time NMPC does.
 """
@@ -32,14 +35,35 @@ from rollbot_oc.ocp.solution import OCPSolution
 __all__ = ["SQPRoute", "RTIRoute"]
 
 
+# HPIPM's return flags (hpipm_common.h), which CasADi passes on as numbers
+_HPIPM_STATUS = {"0": "success", "1": "maximum iterations", "2": "minimum step length", "3": "NaN in solution",
+                 "4": "inconsistent equality constraints"}
+
+
+def _qp_options(name: str, extra: dict | None) -> dict:
+    """Quiet, failure-tolerant options of a CasADi conic plugin, with ``extra`` on top."""
+    opts = {"error_on_fail": False}
+    if name == "qrqp":
+        opts.update(print_iter=False, print_header=False, max_iter=1000)
+    elif name == "osqp":
+        opts.update(osqp={"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 20000, "polish": True})
+    elif name == "qpoases":
+        opts.update(printLevel="none")
+    elif name == "hpipm":
+        opts.update(hpipm={"iter_max": 100, "mode": "robust"})
+    opts.update(extra or {})
+    return opts
+
+
 class SQPRoute:
     """Gauss-Newton SQP to convergence (see module doc).
 
     Parameters
     ----------
     transcription : Transcription
-    qp_solver : str
-        A CasADi conic plugin (``"qrqp"``, ``"osqp"``, ``"hpipm"``, ...).
+    qp_solver : str or tuple of str
+        A CasADi conic plugin (``"qrqp"``, ``"osqp"``, ``"hpipm"``, ...), or
+        several tried in order on each QP until one solves it.
     max_iter : int
         SQP iterations.
     tol : float
@@ -57,11 +81,13 @@ class SQPRoute:
 
     name = "sqp"
 
-    def __init__(self, transcription, qp_solver: str = "qrqp", max_iter: int = 100, tol: float = 1e-8,
+    def __init__(self, transcription, qp_solver="qrqp", max_iter: int = 100, tol: float = 1e-8,
                  regularisation: float = 1e-8, line_search: bool = True, compiled: bool | None = False,
                  qp_options: dict | None = None):
-        if not ca.has_conic(qp_solver):
-            raise ConfigError(f"qp_solver = {qp_solver!r} is not a CasADi conic plugin available here")
+        names = (qp_solver,) if isinstance(qp_solver, str) else tuple(qp_solver)
+        for name in names:
+            if not (isinstance(name, str) and ca.has_conic(name)):
+                raise ConfigError(f"qp_solver = {name!r} is not a CasADi conic plugin available here")
         if not (isinstance(max_iter, int) and max_iter >= 1):
             raise ConfigError(f"max_iter = {max_iter!r} must be a whole number >= 1")
         self.transcription = tr = transcription
@@ -72,57 +98,92 @@ class SQPRoute:
             compiled = compiler() is not None
         self.linearisation = StructuredLinearisation(tr, regularisation, compiled)
         self.merit = self.linearisation.cost_and_constraints
-        opts = {"error_on_fail": False}
-        if qp_solver == "qrqp":
-            opts.update(print_iter=False, print_header=False, max_iter=1000)
-        elif qp_solver == "osqp":
-            opts.update(osqp={"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 20000, "polish": True})
-        opts.update(qp_options or {})
-        self.qp_solver = qp_solver
-        self.qp = ca.conic("ocp_qp", qp_solver, {"h": self.linearisation.H_sparsity,
-                                                  "a": self.linearisation.J_sparsity}, opts)
+        self.qp_solver = names[0] if len(names) == 1 else names
+        self.qp_feasibility = 1e-6  # largest violation of a QP's constraints that counts as solved
+        pattern = {"h": self.linearisation.H_sparsity, "a": self.linearisation.J_sparsity}
+        self.qps = [ca.conic(f"ocp_qp_{name}", name, pattern, _qp_options(name, qp_options if i == 0 else None))
+                    for i, name in enumerate(names)]
+        self.qp = self.qps[0]
 
     # -- one QP ---------------------------------------------------------------------------------
-    def _qp_step(self, w, lam_w, lam_g, par):
-        """The QP at ``w``: returns ``(d, lam_w, lam_g, ok, status, f, g, grad)``."""
+    def _qp_step(self, w, lam_w, lam_g, par, relax=None):
+        """The QP at ``w``: returns ``(d, lam_w, lam_g, ok, status, f, g, grad)``; ``relax``: rows of ``g``
+        dropped if the QP fails with them."""
         tr = self.transcription
         H, grad, g, J, f = self.linearisation(w, par)
         if not (np.all(np.isfinite(g)) and np.all(np.isfinite(grad)) and np.all(np.isfinite(np.array(J.nonzeros())))):
             return None, lam_w, lam_g, False, "non-finite linearisation", float(f), g, None
-        args = dict(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=tr.lbw - w, ubx=tr.ubw - w)
-        if lam_w is not None:
-            args.update(lam_x0=lam_w, lam_a0=lam_g)
-        try:
-            with interruptible("QP solve"):
-                sol = self.qp(**args)
-        except RuntimeError as exc:  # an ill-posed QP is a failed step, not a crash
-            return None, lam_w, lam_g, False, f"QP error: {str(exc).splitlines()[-1][:80]}", float(f), g, None
-        stats = self.qp.stats()
-        ok = bool(stats.get("success", False))
-        d = np.array(sol["x"]).ravel()
-        ok = ok and bool(np.all(np.isfinite(d)))
-        status = str(stats.get("return_status", "success" if ok else "failed"))
-        return (d, np.array(sol["lam_x"]).ravel(), np.array(sol["lam_a"]).ravel(), ok, status, float(f), g,
-                np.array(grad).ravel())
+        lbw, ubw = tr.bounds(par)
+        args = dict(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=lbw - w, ubx=ubw - w)
+        sol, ok, status = self._solve_qp(args, lam_w, lam_g)
+        if not ok and relax is not None and relax.size:
+            args["lba"], args["uba"] = args["lba"].copy(), args["uba"].copy()
+            args["lba"][relax], args["uba"][relax] = -np.inf, np.inf
+            sol, ok, relaxed = self._solve_qp(args, None, None)
+            status = f"relaxed ({status})" if ok else relaxed
+        if sol is None:
+            return None, lam_w, lam_g, False, status, float(f), g, None
+        return (np.array(sol["x"]).ravel(), np.array(sol["lam_x"]).ravel(), np.array(sol["lam_a"]).ravel(), ok,
+                status, float(f), g, np.array(grad).ravel())
+
+    def _solve_qp(self, args, lam_w, lam_g):
+        """``(solution, ok, status)`` of one QP: by each QP solver in turn, warm-started from ``lam_w, lam_g``
+        if given and once more cold if that fails; the first solver's status if none solves it."""
+        first = None
+        for qp in self.qps:
+            sol, ok, status = self._solve_qp_by(qp, args, lam_w, lam_g)
+            if ok:
+                return sol, ok, status
+            first = first or (sol, ok, status)
+        return first
+
+    def _solve_qp_by(self, qp, args, lam_w, lam_g):
+        sol, ok, status = None, False, "QP not solved"
+        for warm in ((lam_w, lam_g), None) if lam_w is not None else (None,):
+            extra = dict(lam_x0=warm[0], lam_a0=warm[1]) if warm is not None else {}
+            try:
+                with interruptible("QP solve"):
+                    sol = qp(**args, **extra)
+            except RuntimeError as exc:  # an ill-posed QP is a failed step, not a crash
+                sol, ok, status = None, False, f"QP error: {str(exc).splitlines()[-1][:80]}"
+                continue
+            stats = qp.stats()
+            d = np.array(sol["x"]).ravel()
+            ok = bool(stats.get("success", False)) and bool(np.all(np.isfinite(d)))
+            status = _HPIPM_STATUS.get(str(stats.get("return_status")), str(stats.get("return_status",
+                                                                                     "success" if ok else "failed")))
+            if ok and self._violation_of(args, d) > self.qp_feasibility:
+                # an active-set solver may stop on an infeasible QP and call it a success: checked here
+                ok, status = False, "infeasible QP"
+            if ok:
+                break
+        return sol, ok, status
+
+    @staticmethod
+    def _violation_of(args, d) -> float:
+        """Largest violation of a QP's constraints and bounds by its step ``d``."""
+        rows = np.array(ca.mtimes(args["a"], ca.DM(d))).ravel()
+        return float(max(np.max(args["lba"] - rows, initial=0.0), np.max(rows - args["uba"], initial=0.0),
+                         np.max(args["lbx"] - d, initial=0.0), np.max(d - args["ubx"], initial=0.0)))
 
     def _violation(self, g) -> float:
         tr = self.transcription
         return float(np.sum(np.maximum(tr.lbg - g, 0.0)) + np.sum(np.maximum(g - tr.ubg, 0.0)))
 
     # -- iterations -----------------------------------------------------------------------------
-    def iterate(self, w, lam_w, lam_g, par, max_iter: int):
+    def iterate(self, w, lam_w, lam_g, par, max_iter: int, relax=None):
         """Up to ``max_iter`` SQP iterations from ``w``; returns ``(w, lam_w, lam_g, status, ok, iterations)``."""
         status, ok, it = "max iterations", False, 0
         for it in range(1, max_iter + 1):
-            d, lw, lg, qp_ok, qp_status, f, g, grad = self._qp_step(w, lam_w, lam_g, par)
+            d, lw, lg, qp_ok, qp_status, f, g, grad = self._qp_step(w, lam_w, lam_g, par, relax)
             if not qp_ok:
                 return w, lam_w, lam_g, f"QP failed: {qp_status}", False, it
             alpha = self._step_length(w, d, grad, lg, f, g, par) if self.line_search else 1.0
-            w = w + alpha * d
+            w = np.clip(w + alpha * d, *self.transcription.bounds(par))  # a QP may overstep a bound a little
             lam_w = lw if lam_w is None else (1 - alpha) * lam_w + alpha * lw
             lam_g = lg if lam_g is None else (1 - alpha) * lam_g + alpha * lg
             if max_iter == 1:
-                return w, lam_w, lam_g, "step", True, it
+                return w, lam_w, lam_g, qp_status, True, it  # one step: the QP's own status
             if np.abs(alpha * d).max(initial=0.0) < self.tol:
                 _f, g_new = self.merit(w, par)
                 if self._violation(g_new) < self.tol * max(1, g.size):
@@ -149,23 +210,48 @@ class SQPRoute:
         return self.attempt(guess, warm, **parameters).check()
 
     def attempt(self, guess=None, warm: OCPSolution | None = None, max_iter: int | None = None,
-                **parameters) -> OCPSolution:
-        """Iterate and return the last iterate whatever its status (check ``success``)."""
+                multipliers=None, relax=(), **parameters) -> OCPSolution:
+        """Iterate and return the last iterate whatever its status (check ``success``).
+
+        Parameters
+        ----------
+        guess : array_like, optional
+            Decision vector to start from (``Transcription.layout.pack``).
+        warm : OCPSolution, optional
+            A solution to start from, with its multipliers (instead of ``guess``).
+        max_iter : int, optional
+            Iterations of this call (default: the route's).
+        multipliers : (lam_w, lam_g), optional
+            Multipliers to warm-start the first QP's active set with ``guess``.
+        relax : sequence of str
+            Names of constraints dropped from a QP that cannot be solved with them.
+        **parameters
+            The problem's parameters by name (``p``: the model parameters).
+        """
         tr = self.transcription
         par = tr.parameter_vector(parameters)
         if warm is not None:
             w, lam_w, lam_g = warm.w.copy(), warm.lam_w, warm.lam_g
         else:
             w = tr.default_guess() if guess is None else np.asarray(guess, float).copy()
-            lam_w = lam_g = None
-        w = np.clip(w, tr.lbw, tr.ubw)
+            lam_w, lam_g = multipliers if multipliers is not None else (None, None)
+        w = np.clip(w, *tr.bounds(par))
+        rows = self._relaxed_rows(tuple(relax))
         start = time.perf_counter()
-        w, lam_w, lam_g, status, ok, it = self.iterate(w, lam_w, lam_g, par, max_iter or self.max_iter)
+        w, lam_w, lam_g, status, ok, it = self.iterate(w, lam_w, lam_g, par, max_iter or self.max_iter, rows)
         elapsed = time.perf_counter() - start
         f, _g = self.merit(w, par)
         lam_w = np.zeros(w.size) if lam_w is None else lam_w
         lam_g = np.zeros(tr.lbg.size) if lam_g is None else lam_g
         return OCPSolution(self.name, status, ok, it, elapsed, float(f), w, lam_w, lam_g, par, tr)
+
+    def _relaxed_rows(self, names: tuple):
+        if not names:
+            return None
+        cache = self.__dict__.setdefault("_relax_cache", {})
+        if names not in cache:
+            cache[names] = np.concatenate([self.transcription.rows_of(name) for name in names])
+        return cache[names]
 
     def to_function(self) -> ca.Function:
         """One full SQP step as a CasADi Function ``(w, lam_w, lam_g, par) -> (w, lam_w, lam_g)``.
@@ -183,7 +269,8 @@ class SQPRoute:
         lin = ca.Function("ocp_linearisation", [tr.w, tr.par], [ca.project(H, self.linearisation.H_sparsity), grad,
                                                                  tr.g, ca.project(J, self.linearisation.J_sparsity)])
         H, grad, g, J = lin(w, par)
-        sol = self.qp(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=tr.lbw - w, ubx=tr.ubw - w,
+        lbw, ubw = tr.bounds_symbolic(par)
+        sol = self.qp(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=lbw - w, ubx=ubw - w,
                       lam_x0=lw, lam_a0=lg)
         return ca.Function("ocp_sqp_step", [w, lw, lg, par], [w + sol["x"], sol["lam_x"], sol["lam_a"]],
                            ["w", "lam_w", "lam_g", "par"], ["w_next", "lam_w_next", "lam_g_next"])

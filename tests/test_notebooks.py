@@ -12,7 +12,7 @@ NOTEBOOKS = sorted((Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
 
 def test_all_notebooks_exist():
     assert {"01_dynamics", "02_quasi_stable", "03_stability", "04_pid_experiments", "05_nmpc_waypoints",
-            "06_design_tradeoffs", "08_onboard_sensing"} <= {p.stem for p in NOTEBOOKS}
+            "06_design_tradeoffs", "07_your_own_ocp", "08_onboard_sensing"} <= {p.stem for p in NOTEBOOKS}
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)

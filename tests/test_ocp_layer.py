@@ -14,6 +14,8 @@ from rollbot_oc.ocp.constraints import at_rest, driving_speed, motor_accel, moto
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.simulate import simulate
 
+from legs import leg_problem as shared_leg
+
 PARAMS = RollbotParams(slope=math.radians(1.0), slope_dir=0.5)
 GOAL = np.array([0.0, 0.4])
 N = 12
@@ -21,17 +23,7 @@ N = 12
 
 def leg_problem():
     """Minimum time (plus a little effort) from rest to rest at a goal 0.4 m away, on a 1 deg slope."""
-    ocp = OCP(N=N, T=FreeTime(guess=3.0, lower=0.5, upper=10.0), substeps=4)
-    x, u = ocp.state, ocp.control
-    ocp.initial_state()
-    goal = ocp.parameter("goal", 2)
-    ocp.minimize_time()
-    ocp.add_least_squares(u.accel / ocp.params.max_accel, weight=1e-2)
-    ocp.subject_to(motor_torque(ocp, 0.9), no_jump(ocp, 0.2), no_slide(ocp, 0.9), driving_speed(ocp, 0.95),
-                   motor_accel(ocp))
-    ocp.subject_to(x.position == goal, at="end")
-    ocp.subject_to(at_rest(ocp), at="end")
-    return ocp
+    return shared_leg(N, FreeTime(guess=3.0, lower=0.5, upper=10.0), substeps=4, minimum_time=True, effort=1e-2)
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,21 @@ import casadi as ca
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.ocp.routes.ipopt import NLPRoute
 
-__all__ = ["FatropRoute"]
+__all__ = ["FatropRoute", "fatrop_status"]
+
+# fatrop's IpSolverReturnFlag, in its order (fatrop 1.x); CasADi reports its index as stats()["fatrop"]["return_flag"]
+# (its own "return_status" is only 0 or 1)
+_FLAGS = ("Success", "MaxIterExceeded", "StopAtTinyStep", "StopAtAcceptablePoint", "LocalInfeasibility",
+          "FeasiblePointFound", "DivergingIterates", "ErrorInStepComputation", "InvalidOption", "InternalError",
+          "Unknown")
+
+
+def fatrop_status(stats: dict) -> str:
+    """fatrop's named return status from an ``nlpsol``'s stats (``"fatrop flag N"`` for a flag it does not name)."""
+    flag = stats.get("fatrop", {}).get("return_flag")
+    if isinstance(flag, int) and 0 <= flag < len(_FLAGS):
+        return _FLAGS[flag]
+    return f"fatrop flag {flag}"
 
 
 class FatropRoute(NLPRoute):
@@ -34,3 +48,9 @@ class FatropRoute(NLPRoute):
                 "print_time": False, "debug": False,
                 "fatrop": {"print_level": 0, "max_iter": max_iter, "tol": tol, **(options or {})}}
         self.solver = ca.nlpsol("ocp_fatrop", "fatrop", nlp, opts)
+
+    def attempt(self, guess=None, warm=None, **parameters):
+        """Solve and return the solution whatever its status, named from fatrop's return flag."""
+        solution = super().attempt(guess, warm, **parameters)
+        solution.status = fatrop_status(self.solver.stats())
+        return solution

@@ -34,6 +34,8 @@ from rollbot_oc.ocp.solution import OCPSolution
 
 __all__ = ["SQPRoute", "RTIRoute"]
 
+INTERIOR_POINT = ("ipopt", "fatrop")  # routes whose multipliers are not an active set
+
 
 # HPIPM's return flags (hpipm_common.h), which CasADi passes on as numbers
 _HPIPM_STATUS = {"0": "success", "1": "maximum iterations", "2": "minimum step length", "3": "NaN in solution",
@@ -80,6 +82,7 @@ class SQPRoute:
     """
 
     name = "sqp"
+    single_step = False  # one iteration is a result of its own (RTI), not an unconverged SQP
 
     def __init__(self, transcription, qp_solver="qrqp", max_iter: int = 100, tol: float = 1e-8,
                  regularisation: float = 1e-8, line_search: bool = True, compiled: bool | None = False,
@@ -182,7 +185,7 @@ class SQPRoute:
             w = np.clip(w + alpha * d, *self.transcription.bounds(par))  # a QP may overstep a bound a little
             lam_w = lw if lam_w is None else (1 - alpha) * lam_w + alpha * lw
             lam_g = lg if lam_g is None else (1 - alpha) * lam_g + alpha * lg
-            if max_iter == 1:
+            if max_iter == 1 and self.single_step:
                 return w, lam_w, lam_g, qp_status, True, it  # one step: the QP's own status
             if np.abs(alpha * d).max(initial=0.0) < self.tol:
                 _f, g_new = self.merit(w, par)
@@ -203,6 +206,25 @@ class SQPRoute:
                 return alpha
             alpha *= 0.5
         return alpha
+
+    def _active_multipliers(self, w, lam_w, lam_g, par, tol: float = 1e-6):
+        """An interior point's multipliers reduced to the constraints active at ``w`` (the others set to 0).
+
+        An interior point leaves every inequality a small multiplier (about
+        ``mu / slack``); an active-set QP solver such as ``qrqp`` reads every
+        nonzero multiplier as an active constraint, and that many active rows
+        make its first KKT system singular ("Failed to calculate search
+        direction").  A row counts as active within ``tol`` of a bound (the
+        constraints are scaled to order one); equalities always are.
+        """
+        tr = self.transcription
+        _f, g = self.merit(w, par)
+
+        def keep(value, lower, upper, lam):
+            active = (value - lower <= tol) | (upper - value <= tol)
+            return np.where(active, lam, 0.0)
+
+        return keep(w, *tr.bounds(par), lam_w), keep(g, tr.lbg, tr.ubg, lam_g)
 
     # -- the route protocol ---------------------------------------------------------------------
     def solve(self, guess=None, warm: OCPSolution | None = None, **parameters) -> OCPSolution:
@@ -232,6 +254,8 @@ class SQPRoute:
         par = tr.parameter_vector(parameters)
         if warm is not None:
             w, lam_w, lam_g = warm.w.copy(), warm.lam_w, warm.lam_g
+            if warm.route in INTERIOR_POINT:
+                lam_w, lam_g = self._active_multipliers(w, lam_w, lam_g, par)
         else:
             w = tr.default_guess() if guess is None else np.asarray(guess, float).copy()
             lam_w, lam_g = multipliers if multipliers is not None else (None, None)
@@ -284,6 +308,7 @@ class RTIRoute(SQPRoute):
     """
 
     name = "rti"
+    single_step = True
 
     def __init__(self, transcription, qp_solver: str = "qrqp", iterations: int = 1, **options):
         options.setdefault("line_search", False)

@@ -240,3 +240,29 @@ def test_a_state_no_command_keeps_within_the_limits_gets_a_relaxed_solve():
     assert np.all(np.abs(U) <= params.max_accel + 1e-9)
     z0[2], z0[3] = 1.0, 0.0  # hanging: the same solver solves the full problem
     assert solver.solve(z0, Zr * 0 + z0[:, None], np.zeros(settings.N), params.vector())[2] == "success"
+
+
+def test_one_constraint_reaches_every_problem_of_the_nmpc():
+    """``NMPCSettings.constraints``: one line, and the legs the NMPC plans and its tracking problem keep it."""
+    from rollbot_oc.control.nmpc.loop import _rest_to_rest
+    from rollbot_oc.control.nmpc.tracking import RTISolver
+    from rollbot_oc.dynamics import rest_state
+    from rollbot_oc.ocp.constraints import position_box
+
+    lower, upper = np.array([-0.35, -0.35]), np.array([1.25, 1.25])
+    settings = NMPCSettings(constraints=(lambda ocp: position_box(ocp, lower, upper),))
+    params = RollbotParams()
+    legs = _rest_to_rest(params, settings.plan, settings.constraints)
+    start = rest_state(params, position=(-0.3, -0.3))
+    free = _rest_to_rest(params, settings.plan, ()).fastest(start, [0.0, 0.0], 2)
+    fenced = legs.fastest(start, [0.0, 0.0], 2)
+    assert (free.z[0:2] < lower[:, None] - 0.05).any()  # the fastest leg swings out of the box ...
+    assert (fenced.z[0:2] >= lower[:, None] - 1e-6).all() and (fenced.z[0:2] <= upper[:, None] + 1e-6).all()
+    assert fenced.T >= free.T - 1e-6  # ... and keeping in costs time
+    tracking = RTISolver(params, settings, settings.waypoint_weights).route.transcription
+    lbw, ubw = tracking.bounds(tracking.parameter_vector(
+        {name: np.zeros(sl.stop - sl.start) for name, sl in tracking.layout.parameters.items()}
+        | {name: np.zeros(sl.stop - sl.start) for name, sl in tracking.layout.stage_parameters.items()}
+        | {"p": params.vector()}))
+    positions = tracking.layout.states(np.arange(tracking.layout.size))[0:2].astype(int)  # their places in w
+    assert np.allclose(lbw[positions], lower[:, None]) and np.allclose(ubw[positions], upper[:, None])

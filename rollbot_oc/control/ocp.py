@@ -8,20 +8,18 @@ Problems (all direct multiple shooting in CasADi, solved by IPOPT):
   (the phase on the orbit is free), in minimum time;
 * ``plan_waypoints``: a chain of rest-to-rest legs through a list of stops.
 
-Transcription.  The prediction model is the reduced (pendulum-frame, 10-state)
-form of the full equations of motion (``dynamics.reduced_model``); the control
-is the motor acceleration, piecewise constant on ``N`` intervals of length
-``T / N`` with ``T`` a decision variable; each interval is integrated by RK4
-with ``substeps`` steps.  The stage Function (gap, torque, contact margins) is
-built in SX once and mapped over the horizon (``Function.map``), which keeps
-the NLP small to build (a fraction of a second) and lets CasADi's AD give
-exact Jacobians.  Constraints at every node: driving speed within
-``speed_margin * max_speed``, motor acceleration within ``max_accel``, motor
-torque within ``torque_margin * max_torque``, normal force at least
-``normal_margin`` times the weight (no jump) and tangential force within
-``friction_margin * mu`` times the normal force (no slide).  The margins leave
-room for what the plan's 5 to 15 cm/s of prediction error and the plant's
-slope will ask of the feedback.
+Every problem is an ``OCP`` of the optimal-control layer (``rollbot_oc.ocp``),
+the one description the NMPC's tracking problem is also written in: the
+reduced (pendulum-frame, 10-state) model, the motor acceleration piecewise
+constant on ``N`` intervals of a free (or fixed) duration, and the named
+limits of ``rollbot_oc.ocp.constraints`` with the margins of ``OCPSettings``:
+driving speed within ``speed_margin * max_speed``, motor acceleration within
+``accel_margin * max_accel``, motor torque within ``torque_margin *
+max_torque``, normal force at least ``normal_margin`` times the weight (no
+jump) and tangential force within ``friction_margin * mu`` times the normal
+force (no slide).  The margins leave room for what the plan's prediction
+error and the plant's slope will ask of the feedback.  More constraints
+(``constraints``: functions of the ``OCP``) join them in one line.
 
 Initial guesses come from the quasi-stable theory, never zeros: a search over
 trapezoidal driving-speed profiles (ramp up, hold, ramp down) whose
@@ -29,32 +27,33 @@ quasi-stable kinematics (revolving rate and radius from ``RadiusMap``) end
 nearest the goal, then the best few simulated in the full plant, whose
 trajectory seeds every node.
 
-IPOPT uses a limited-memory Hessian here: on these problems each iteration
-costs a fraction of an exact-Hessian one and it needs no more of them (a
-1.2 m leg: 2.3 s and 54 iterations, against 8.1 s and 80 with the exact
-Hessian; ``benchmarks/bench_nmpc.py``).
+IPOPT uses a limited-memory Hessian here, with the stages and their Jacobians
+compiled to C where a compiler exists (``OCPSettings.compiled``): each
+iteration costs a fraction of an exact-Hessian one in CasADi's virtual
+machine, and it needs no more of them (``benchmarks/bench_nmpc.py``).
 """
 
 from __future__ import annotations
 
 import functools
 import math
-import time
 from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.codegen import compiled
-from rollbot_oc.errors import NotConverged, interruptible
-from rollbot_oc.dynamics import NW, NZ, from_reduced, imbalance, reduced_model, rk4, to_reduced
-from rollbot_oc.params import NP, TILT, ParamView, RollbotParams
+from rollbot_oc.codegen import compiler
+from rollbot_oc.errors import NotConverged
+from rollbot_oc.dynamics import NW, NZ, from_reduced, reduced_model, rk4, to_reduced
+from rollbot_oc.params import NP, PARAM_INDEX, TILT, RollbotParams
 from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_state
 from rollbot_oc.rotations import quat_multiply
+from rollbot_oc.ocp import OCP, FreeTime, bounded
+from rollbot_oc.ocp.constraints import at_rest, driving_speed, motor_accel, motor_torque, no_jump, no_slide
 from rollbot_oc.simulate import simulate
 
 __all__ = ["OCPSettings", "Plan", "RestToRest", "OrbitEntry", "plan_waypoints", "interval_function",
-           "stage_function", "quasi_stable_guess", "quasi_stable_guesses", "orbit_state", "SolveFailed"]
+           "quasi_stable_guess", "quasi_stable_guesses", "orbit_state", "SolveFailed"]
 
 _W0 = ca.DM.zeros(NW)
 
@@ -129,30 +128,6 @@ def interval_function(substeps: int) -> ca.Function:
     z, u, h, p = ca.SX.sym("z", NZ), ca.SX.sym("u"), ca.SX.sym("h"), ca.SX.sym("p", NP)
     z_next = rk4(red.f, z, h, substeps, u, p, _W0)
     return ca.Function("rk4_interval", [z, u, h, p], [z_next], ["z", "u", "h", "p"], ["z_next"])
-
-
-@functools.lru_cache(maxsize=None)
-def stage_function(substeps: int, friction_margin: float) -> ca.Function:
-    """``(z, u, z_next, h, p) -> (gap (10), torque, normal force, friction slack)`` of one interval.
-
-    The friction slack ``friction_margin * mu * N_z - |N_t|`` is written smoothly as
-    ``(friction_margin mu N_z)^2 - |N_t|^2`` (with ``N_z > 0`` imposed alongside).
-    """
-    red, F = reduced_model(), interval_function(substeps)
-    z, u, zn, h, p = ca.SX.sym("z", NZ), ca.SX.sym("u"), ca.SX.sym("zn", NZ), ca.SX.sym("h"), ca.SX.sym("p", NP)
-    N = red.reaction(z, u, p, _W0)
-    slack = (friction_margin * ParamView(p).mu * N[2]) ** 2 - N[0] ** 2 - N[1] ** 2
-    return ca.Function("stage", [z, u, zn, h, p],
-                       [ca.vertcat(zn - F(z, u, h, p), red.motor_torque(z, u, p, _W0), N[2], slack)],
-                       ["z", "u", "z_next", "h", "p"], ["g"])
-
-
-@functools.lru_cache(maxsize=None)
-def _compiled_stage(substeps: int, friction_margin: float) -> ca.Function | None:
-    """``stage_function`` and its AD Jacobian as compiled C (loaded once per process), or None without a compiler."""
-    stage = stage_function(substeps, friction_margin)
-    fast = compiled(stage, jacobian=True)
-    return fast if fast is not stage else None
 
 
 def orbit_state(qs_reduced, centre, phase):
@@ -241,105 +216,104 @@ class Plan:
 
 
 class _MinTimeOCP:
-    """Shared machinery of the minimum-time problems: variables, stage constraints, bounds, solve."""
+    """What the minimum-time problems share, written on the optimal-control layer (``rollbot_oc.ocp``).
+
+    Each problem is one ``OCP``: minimum time plus a little motor effort, the
+    named limits of ``rollbot_oc.ocp.constraints`` with the settings'
+    margins, the user's ``constraints``, and the end conditions of the
+    subclass (``_end``).  It is transcribed and its IPOPT route built once per
+    duration (``None``: free), and solved per leg with the robot's parameter
+    vector (the floor's tilt and scaled motor limits in it).
+    """
 
     name = "ocp"
 
-    def __init__(self, params: RollbotParams, settings: OCPSettings | None = None):
+    def __init__(self, params: RollbotParams, settings: OCPSettings | None = None, constraints=()):
         self.params = params
-        self.settings = s = settings or OCPSettings()
-        N = s.N
-        stage = _compiled_stage(s.substeps, s.friction_margin) if s.compiled else None
-        self.compiled = stage is not None
-        stage = (stage or stage_function(s.substeps, s.friction_margin)).map(N)
-        self.Z, self.U, self.Tv = ca.MX.sym("Z", NZ, N + 1), ca.MX.sym("U", 1, N), ca.MX.sym("T")
-        self.z0, self.pp = ca.MX.sym("z0", NZ), ca.MX.sym("p", NP)
-        gs = stage(self.Z[:, :-1], self.U, self.Z[:, 1:], self.Tv / N, self.pp)
-        weight = params.total_mass * params.g
-        tau = s.torque_margin * params.max_torque
-        self.g = [self.Z[:, 0] - self.z0, ca.vec(gs)]
-        self.lbg = [np.zeros(NZ), np.tile(np.concatenate([np.zeros(NZ), [-tau, s.normal_margin * weight, 0.0]]), N)]
-        self.ubg = [np.zeros(NZ), np.tile(np.concatenate([np.zeros(NZ), [tau, np.inf, np.inf]]), N)]
-        self.extra_vars, self.extra_params = [], []
-        self.cost = self.Tv + s.effort_weight * ca.sumsqr(self.U) * self.Tv / N
+        self.settings = settings or OCPSettings()
+        self.constraints = tuple(constraints)
+        self._routes = {}
+        self.route = self._route(None)  # the free-time problem, built now
+        self.compiled = bool(self.settings.compiled and compiler() is not None)
 
-    def _finish(self):
-        """Assemble and build the solver (once)."""
-        s, N, params = self.settings, self.settings.N, self.params
-        x = ca.vertcat(ca.vec(self.Z), ca.vec(self.U), self.Tv, *self.extra_vars)
-        n = x.shape[0]
-        lbx, ubx = np.full(n, -np.inf), np.full(n, np.inf)
-        speed = s.speed_margin * params.max_speed
-        lbx[9:NZ * (N + 1):NZ], ubx[9:NZ * (N + 1):NZ] = -speed, speed
-        iu = NZ * (N + 1)
-        accel = s.accel_margin * params.max_accel
-        lbx[iu:iu + N], ubx[iu:iu + N] = -accel, accel
-        lbx[iu + N], ubx[iu + N] = s.T_min, s.T_max
-        self.bounds = dict(lbx=lbx, ubx=ubx, lbg=np.concatenate(self.lbg), ubg=np.concatenate(self.ubg))
-        nlp = {"x": x, "p": ca.vertcat(self.z0, self.pp, *self.extra_params), "f": self.cost, "g": ca.vertcat(*self.g)}
-        opts = {"ipopt": {"max_iter": s.max_iter, "print_level": 0, "sb": "yes", "tol": 1e-6, "acceptable_tol": 1e-4,
-                          "hessian_approximation": s.hessian}, "print_time": False,
-                "expand": s.expand or (s.compiled and not self.compiled)}
-        self.solver = ca.nlpsol(self.name, "ipopt", nlp, opts)
-        self.n_extra = n - (iu + N + 1)
+    def _end(self, ocp: OCP) -> None:
+        """Add the problem's end conditions (and its parameters and variables) to ``ocp``."""
+        raise NotImplementedError
 
-    def _solve(self, z0, p_extra, guess: Plan, guess_extra=(), duration: float | None = None, tilt=None,
+    def problem(self, duration: float | None = None) -> OCP:
+        """The problem as an ``OCP``: free time in ``[T_min, T_max]``, or a fixed ``duration`` (s)."""
+        s = self.settings
+        ocp = OCP(N=s.N, T=FreeTime(guess=min(max(5.0, s.T_min), s.T_max), lower=s.T_min, upper=s.T_max)
+                  if duration is None else float(duration), substeps=s.substeps)
+        ocp.initial_state()
+        ocp.minimize_time()
+        ocp.add_cost(s.effort_weight * ocp.control.accel ** 2)
+        ocp.subject_to(motor_torque(ocp, s.torque_margin), no_jump(ocp, s.normal_margin),
+                       no_slide(ocp, s.friction_margin), driving_speed(ocp, s.speed_margin),
+                       motor_accel(ocp, s.accel_margin))
+        ocp.subject_to(*(make(ocp) for make in self.constraints))
+        self._end(ocp)
+        return ocp
+
+    def _route(self, duration: float | None):
+        key = None if duration is None else round(float(duration), 9)
+        if key not in self._routes:
+            s = self.settings
+            compiled = bool(s.compiled and compiler() is not None)
+            self._routes[key] = self.problem(key).solver(
+                "ipopt", hessian="limited-memory" if compiled else s.hessian, max_iter=s.max_iter, tol=1e-6,
+                options={"acceptable_tol": 1e-4}, compiled=compiled, expand=s.expand or (s.compiled and not compiled))
+        return self._routes[key]
+
+    def _solve(self, z0, parameters: dict, guess: Plan, variables=None, duration: float | None = None, tilt=None,
                motor_scale: float = 1.0) -> Plan:
         """Solve from a guess; ``duration`` (s) fixes the time (then the effort is what is minimised);
         ``tilt`` (2,) replaces the parameters' floor tilt vector (an estimated slope); ``motor_scale`` in
-        (0, 1] scales the plan's driving-speed and acceleration limits."""
-        N = self.settings.N
-        if guess.u.size != N:
-            guess = guess.resample(N)
-        x0 = np.concatenate([np.asarray(guess.z).T.ravel(), guess.u, [duration or guess.T], guess_extra])
-        bounds = dict(self.bounds)
-        bounds["lbx"], bounds["ubx"] = bounds["lbx"].copy(), bounds["ubx"].copy()
-        if duration is not None:
-            i_T = NZ * (N + 1) + N
-            bounds["lbx"][i_T] = bounds["ubx"][i_T] = duration
-        if motor_scale != 1.0:
-            if not 0.0 < motor_scale <= 1.0:
-                raise ValueError(f"motor_scale = {motor_scale!r} must be in (0, 1]")
-            motor = np.r_[9:NZ * (N + 1):NZ, NZ * (N + 1):NZ * (N + 1) + N]  # driving speeds, accelerations
-            bounds["lbx"][motor] *= motor_scale
-            bounds["ubx"][motor] *= motor_scale
+        (0, 1] scales the plan's driving-speed and acceleration limits (those of the parameter vector)."""
+        if not 0.0 < motor_scale <= 1.0:
+            raise ValueError(f"motor_scale = {motor_scale!r} must be in (0, 1]")
+        route = self._route(duration)
+        layout = route.transcription.layout
+        if guess.u.size != self.settings.N:
+            guess = guess.resample(self.settings.N)
+        w0 = layout.pack(guess.z, guess.u[None, :], [duration or guess.T], variables,
+                         template=route.transcription.default_guess())
         p = self.params.vector()
         if tilt is not None:
             p[TILT] = tilt
-        start = time.perf_counter()
-        with interruptible(self.name):
-            sol = self.solver(x0=x0, p=np.concatenate([z0, p, p_extra]), **bounds)
-        elapsed = time.perf_counter() - start
-        stats = self.solver.stats()
-        x = np.array(sol["x"]).ravel()
-        z = x[:NZ * (N + 1)].reshape(N + 1, NZ).T
-        u = x[NZ * (N + 1):NZ * (N + 1) + N]
-        T = float(x[NZ * (N + 1) + N])
-        status = stats["return_status"]
-        success = bool(stats["success"]) or status == "Solved_To_Acceptable_Level"
-        return Plan(np.linspace(0.0, T, N + 1), z, u, T, status, success, int(stats["iter_count"]), elapsed,
-                    {"extra": x[NZ * (N + 1) + N + 1:].tolist()})
+        p[PARAM_INDEX["max_speed"]] *= motor_scale
+        p[PARAM_INDEX["max_accel"]] *= motor_scale
+        sol = route.attempt(w0, x0=z0, p=p, **parameters)
+        success = sol.success or sol.status == "Solved_To_Acceptable_Level"
+        extra = {name: sol.variable(name).tolist() for name in layout.variables}
+        return Plan(sol.times, sol.states, sol.controls[0], sol.T, sol.status, success, sol.iterations,
+                    sol.solve_time, extra)
 
 
 class RestToRest(_MinTimeOCP):
-    """Minimum time from a state to rest at a goal point (pendulum down, shell and motor still).
+    """Minimum time from a state to rest at a goal point (shell and motor still, balanced on the floor).
 
-    Built once per parameter set and settings; ``solve`` is called per leg.
+    Built once per parameter set, settings and extra constraints; ``solve`` is called per leg.
+
+    Parameters
+    ----------
+    params : RollbotParams, optional
+    settings : OCPSettings, optional
+    constraints : sequence of callables
+        More path constraints, each a function of the ``OCP`` giving a
+        ``Constraint`` (as ``NMPCSettings.constraints``).
     """
 
     name = "rest_to_rest"
 
-    def __init__(self, params: RollbotParams | None = None, settings: OCPSettings | None = None):
-        super().__init__(params or RollbotParams(), settings)
-        s = self.settings
-        self.goal = ca.MX.sym("goal", 2)
-        zN = self.Z[:, -1]
-        self.g += [zN[0:2] - self.goal, zN[6:10], imbalance(zN[2:6], self.pp)]
-        tol = s.goal_tolerance
-        self.lbg += [np.full(2, -tol), np.zeros(4), np.zeros(2)]
-        self.ubg += [np.full(2, tol), np.zeros(4), np.zeros(2)]
-        self.extra_params = [self.goal]
-        self._finish()
+    def __init__(self, params: RollbotParams | None = None, settings: OCPSettings | None = None, constraints=()):
+        super().__init__(params or RollbotParams(), settings, constraints)
+
+    def _end(self, ocp: OCP) -> None:
+        goal = ocp.parameter("goal", 2)
+        tol = self.settings.goal_tolerance
+        ocp.subject_to(bounded(-tol, ocp.state.position - goal, tol, "goal"), at="end")
+        ocp.subject_to(at_rest(ocp), at="end")
 
     def solve(self, start, goal, guess: Plan | None = None, duration: float | None = None, tilt=None,
               motor_scale: float = 1.0) -> Plan:
@@ -358,12 +332,11 @@ class RestToRest(_MinTimeOCP):
         z0 = _reduced(start)
         goal = np.asarray(goal, float)
         guess = guess or quasi_stable_guess(z0, goal, self.params, self.settings.N)
-        plan = self._solve(z0, goal, guess, duration=duration, tilt=tilt, motor_scale=motor_scale)
+        plan = self._solve(z0, {"goal": goal}, guess, duration=duration, tilt=tilt, motor_scale=motor_scale)
         plan.extra = {"goal": goal.tolist()}
         if not plan.success:
             raise SolveFailed(f"rest-to-rest plan to {goal.tolist()}", plan.status, plan)
         return plan
-
 
     def fastest(self, start, goal, starts: int = 3, tilt=None, motor_scale: float = 1.0) -> Plan:
         """The fastest of the minimum-time plans found from the ``starts`` best quasi-stable guesses.
@@ -404,31 +377,30 @@ class OrbitEntry(_MinTimeOCP):
     ----------
     radius : float
         Target revolving radius, m (on the slow branch).
-    params, settings : optional
+    params, settings, constraints : optional
+        As for ``RestToRest``.
     """
 
     name = "orbit_entry"
 
-    def __init__(self, radius: float, params: RollbotParams | None = None, settings: OCPSettings | None = None):
+    def __init__(self, radius: float, params: RollbotParams | None = None, settings: OCPSettings | None = None,
+                 constraints=()):
         params = params or RollbotParams()
-        super().__init__(params, settings)
         self.radius_map = RadiusMap(params.replace(slope=0.0))
         self.omega0 = float(self.radius_map.omega(radius))
         self.quasi = quasi_stable_state(self.omega0, params.replace(slope=0.0))
         self.qs_reduced = to_reduced(self.quasi.state())
-        self.phase = ca.MX.sym("phase")
-        self.centre = ca.MX.sym("centre", 2)
-        target = orbit_state(ca.DM(self.qs_reduced), self.centre, self.phase)
-        zN = self.Z[:, -1]
+        super().__init__(params, settings, constraints)
+
+    def _end(self, ocp: OCP) -> None:
+        phase, centre = ocp.variable("phase"), ocp.parameter("centre", 2)
+        target = orbit_state(ca.DM(self.qs_reduced), centre, phase)
+        x = ocp.state
         # attitude: the vector part of the relative rotation vanishes (3 independent conditions; equating
         # all four quaternion components would be redundant and spoil the constraint Jacobian's rank)
-        conj = ca.vertcat(target[2], -target[3:6])
-        relative = quat_multiply(conj, zN[2:6])[1:4]
-        self.g += [zN[0:2] - target[0:2], relative, zN[6:10] - target[6:10]]
-        self.lbg += [np.zeros(9)]
-        self.ubg += [np.zeros(9)]
-        self.extra_vars, self.extra_params = [self.phase], [self.centre]
-        self._finish()
+        relative = quat_multiply(ca.vertcat(target[2], -target[3:6]), x.quaternion)[1:4]
+        ocp.subject_to(x.position == target[0:2], relative == 0, x.velocity == target[6:10], at="end",
+                       name="on the orbit")
 
     def solve(self, start, centre, guess: Plan | None = None, duration: float | None = None) -> Plan:
         """Plan from ``start`` onto the orbit about ``centre`` (m); the plan's ``extra['phase']`` (rad) says where.
@@ -445,9 +417,9 @@ class OrbitEntry(_MinTimeOCP):
             guess, phase = _orbit_guess(z0, centre, self)
         else:
             phase = guess.extra.get("phase", 0.0)
-        plan = self._solve(z0, centre, guess, [phase], duration=duration)
-        plan.extra = {"phase": plan.extra["extra"][0], "centre": centre.tolist(), "omega0": self.omega0,
-                      "Omega": self.quasi.Omega}
+        plan = self._solve(z0, {"centre": centre}, guess, {"phase": phase}, duration=duration)
+        plan.extra = {"phase": float(np.ravel(plan.extra["phase"])[0]), "centre": centre.tolist(),
+                      "omega0": self.omega0, "Omega": self.quasi.Omega}
         if not plan.success:
             raise SolveFailed(f"orbit entry about {centre.tolist()}", plan.status, plan)
         return plan

@@ -289,30 +289,42 @@ class Transcription:
         # -- the NLP in MX: stages alike evaluated by one mapped call ---------------------------
         w = ca.MX.sym("w", L.size)
         par = ca.MX.sym("par", offset)
-        p = par[params["p"]]
-        q = ca.vertcat(*[par[params[name]] for name in ocp.parameters]) if ocp.parameters else ca.MX(0, 1)
-        v = ca.vertcat(*[w[variables[name]] for name in ocp.variables]) if ocp.variables else ca.MX(0, 1)
-        SQ = ca.reshape(par[stage_block], n_sq, n + 1)
+        self.w, self.par = w, par
+        self.f, self.g, self.general, self.residuals = self.nlp()
+        self.lbg = np.concatenate([st.lower for st in self.stages])
+        self.ubg = np.concatenate([st.upper for st in self.stages])
+        self.lbw, self.ubw = self._variable_bounds(phase_of)
+        self._bound_places = self._simple_bound_places()
+        self._bound_cache = (None, None)
+        self.global_columns = np.concatenate([np.arange(sl.start, sl.stop) for sl in variables.values()]
+                                             ).astype(int) if variables else np.zeros(0, int)
+
+    def nlp(self, compiled: bool = False):
+        """``(f, g, general, residuals)``: the NLP in MX of ``w`` and ``par``, its stages alike evaluated by one
+        mapped call of their Function; ``compiled``: that Function and its Jacobian as compiled C
+        (``rollbot_oc.codegen``; then an NLP solver has first derivatives only: a limited-memory Hessian)."""
+        ocp, L, w, par = self.ocp, self.layout, self.w, self.par
+        n = L.intervals
+        p = par[L.parameters["p"]]
+        q = ca.vertcat(*[par[L.parameters[name]] for name in ocp.parameters]) if ocp.parameters else ca.MX(0, 1)
+        v = ca.vertcat(*[w[L.variables[name]] for name in ocp.variables]) if ocp.variables else ca.MX(0, 1)
+        SQ = ca.reshape(par[L.stage_block], L.n_stage, n + 1)
         c_of, l_of, r_of = {}, {}, {}
         for fun, group in self.groups():
+            if compiled:
+                from rollbot_oc.codegen import compiled as compile_function
+
+                fun = compile_function(fun, jacobian=True)
             Y = ca.reshape(w[np.concatenate([st.columns for st in group]).tolist()], group[0].columns.size,
                            len(group))
             C, Lc, R = fun.map(len(group))(Y, v, p, q, SQ[:, [st.index for st in group]],
                                            ca.DM([st.hs for st in group]).T)
             for j, st in enumerate(group):
                 c_of[st.index], l_of[st.index], r_of[st.index] = C[:, j], Lc[:, j], R[:, j]
-        self.w, self.par = w, par
-        self.g = ca.vertcat(*[c_of[k] for k in range(n + 1)])
-        self.lbg = np.concatenate([st.lower for st in self.stages])
-        self.ubg = np.concatenate([st.upper for st in self.stages])
-        self.general = ca.sum1(ca.vertcat(*[l_of[k] for k in range(n + 1)]))
-        self.residuals = ca.vertcat(*[r_of[k] for k in range(n + 1)])
-        self.f = self.general + 0.5 * ca.sumsqr(self.residuals)
-        self.lbw, self.ubw = self._variable_bounds(phase_of)
-        self._bound_places = self._simple_bound_places()
-        self._bound_cache = (None, None)
-        self.global_columns = np.concatenate([np.arange(sl.start, sl.stop) for sl in variables.values()]
-                                             ).astype(int) if variables else np.zeros(0, int)
+        g = ca.vertcat(*[c_of[k] for k in range(n + 1)])
+        general = ca.sum1(ca.vertcat(*[l_of[k] for k in range(n + 1)]))
+        residuals = ca.vertcat(*[r_of[k] for k in range(n + 1)])
+        return general + 0.5 * ca.sumsqr(residuals), g, general, residuals
 
     def groups(self):
         """Stages that share a Function, as ``(function, [stages])`` in order of first appearance."""
@@ -382,7 +394,8 @@ class Transcription:
         return lbw, ubw
 
     def rows_of(self, name: str) -> np.ndarray:
-        """Rows of ``g`` (indices) that belong to the constraints named ``name``, at every node.
+        """Rows of ``g`` (indices) that belong to the constraints named ``name``, at every node (none for a
+        constraint kept as simple bounds).
 
         Raises
         ------
@@ -390,7 +403,11 @@ class Transcription:
             If no constraint has that name.
         """
         if name not in self._named_rows:
-            raise ConfigError(f"no constraint named {name!r}; named are {', '.join(sorted(self._named_rows))}")
+            bounds = {b.constraint.name for b in self._simple}
+            if name in bounds:
+                return np.zeros(0, int)  # kept as bounds of w, not rows of g
+            raise ConfigError(f"no constraint named {name!r}; named are "
+                              f"{', '.join(sorted(set(self._named_rows) | bounds))}")
         return np.concatenate(self._named_rows[name]).astype(int)
 
     def _stage_function(self, last, linked, first, hard, soft, costs, duration):

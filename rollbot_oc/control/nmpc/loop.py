@@ -57,7 +57,8 @@ class NMPC:
         self.estimator = TiltEstimator(self.params, dt, s.tilt_process_noise, s.gyro_sigma,
                                        s.tilt_model_error)
         # the legs' planner, built once (its floor tilt is set per plan from the estimate)
-        self._legs = _rest_to_rest(self.params.replace(slope=0.0), s.plan) if isinstance(mission, Waypoints) else None
+        self._legs = _rest_to_rest(self.params.replace(slope=0.0), s.plan, tuple(s.constraints)) \
+            if isinstance(mission, Waypoints) else None
         self.map = None  # set with the plans (for centre-of-curvature plots)
         self.reference = None
         self.plan_time = 0.0
@@ -93,7 +94,7 @@ class NMPC:
         settings = self.settings.entry
         for duration in self.settings.entry_times:
             intervals = int(round(duration / self.settings.h))
-            entry = _orbit_entry(self.mission.radius, level, replace(settings, N=intervals))
+            entry = _orbit_entry(self.mission.radius, level, replace(settings, N=intervals), tuple(self.settings.constraints))
             try:
                 plan = entry.solve(x0, self.mission.centre, duration=duration)
                 break
@@ -536,10 +537,10 @@ class NMPC:
 
 
 @functools.lru_cache(maxsize=8)
-def _rest_to_rest(params: RollbotParams, settings: OCPSettings) -> RestToRest:
-    return RestToRest(params, settings)
+def _rest_to_rest(params: RollbotParams, settings: OCPSettings, constraints: tuple) -> RestToRest:
+    return RestToRest(params, settings, constraints)
 
 
 @functools.lru_cache(maxsize=8)
-def _orbit_entry(radius: float, params: RollbotParams, settings: OCPSettings) -> OrbitEntry:
-    return OrbitEntry(radius, params, settings)
+def _orbit_entry(radius: float, params: RollbotParams, settings: OCPSettings, constraints: tuple) -> OrbitEntry:
+    return OrbitEntry(radius, params, settings, constraints)

@@ -100,6 +100,14 @@ class NMPCSettings:
         plans it tracks, ``plan.torque_margin``: the rest is the feedback's).
     speed_margin : float
         Fraction of the driving-speed limit the tracking NMPC may use.
+    constraints : tuple of callables
+        More path constraints of the NMPC, each a function of an ``OCP``
+        returning a ``Constraint`` (``rollbot_oc.ocp.constraints``, or
+        ``bounded(lower, expression, upper, name)`` of the stage symbols) or a
+        relation, e.g. ``lambda ocp: position_box(ocp, (-0.1, -0.1), (1.3,
+        1.3))``: one line, and the legs it plans, a circle's entry and the
+        tracking problem all keep it (like the motor and contact limits, the
+        tracking QP drops it when no command can satisfy it).
     normal_margin : float
         Least normal force as a fraction of the weight.
     friction_margin : float
@@ -227,6 +235,7 @@ class NMPCSettings:
     circle_weights: "TrackingWeights" = None
     torque_margin: float = 0.95
     speed_margin: float = 0.98
+    constraints: tuple = ()
     normal_margin: float = 0.1
     friction_margin: float = 0.95
     max_failures: int = 3
@@ -263,7 +272,7 @@ class NMPCSettings:
     ipopt_iteration_time: float = 0.01
     compiled: bool | None = None
     plan: OCPSettings = field(default_factory=lambda: OCPSettings(N=40, accel_margin=0.85, compiled=True, max_iter=150))
-    entry: OCPSettings = field(default_factory=OCPSettings)
+    entry: OCPSettings = field(default_factory=lambda: OCPSettings(compiled=True))
 
     def __post_init__(self):
         if self.waypoint_weights is None:

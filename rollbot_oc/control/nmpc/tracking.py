@@ -41,13 +41,15 @@ RELAXABLE = ("motor torque", "no jump", "no slide")  # dropped from a QP no comm
 
 
 def tracking_problem(N: int, h: float, substeps: int = 2, torque_margin: float = 0.95, normal_margin: float = 0.1,
-                     friction_margin: float = 0.95, speed_margin: float = 0.98) -> OCP:
+                     friction_margin: float = 0.95, speed_margin: float = 0.98, constraints=()) -> OCP:
     """The NMPC's tracking problem (module doc) on ``N`` intervals of ``h`` s.
 
     Stage parameters: ``reference`` (10) and ``accel_reference`` (1), the
     square roots of the weights ``state_weight`` (10), ``accel_weight`` and
     ``radial_weight``; parameters ``x0`` (10) and ``circle`` (centre x, y,
-    radius; m).  The margins are the fractions of the limits it may use.
+    radius; m).  The margins are the fractions of the limits it may use;
+    ``constraints``: more path constraints, functions of the ``OCP`` giving a
+    ``Constraint`` (``NMPCSettings.constraints``).
     """
     ocp = OCP(N=N, T=N * h, substeps=substeps)
     x, u = ocp.x, ocp.u
@@ -62,13 +64,14 @@ def tracking_problem(N: int, h: float, substeps: int = 2, torque_margin: float =
     ocp.add_least_squares(tracking, at="end")
     ocp.subject_to(motor_torque(ocp, torque_margin), no_jump(ocp, normal_margin), no_slide(ocp, friction_margin),
                    driving_speed(ocp, speed_margin), motor_accel(ocp))
+    ocp.subject_to(*(make(ocp) for make in constraints))
     return ocp
 
 
 @functools.lru_cache(maxsize=8)
-def _route(route: str, N: int, h: float, substeps: int, margins: tuple, compiled: bool):
-    """The tracking problem's solver by ``route``, built once per horizon and margins."""
-    ocp = tracking_problem(N, h, substeps, *margins)
+def _route(route: str, N: int, h: float, substeps: int, margins: tuple, constraints: tuple, compiled: bool):
+    """The tracking problem's solver by ``route``, built once per horizon, margins and extra constraints."""
+    ocp = tracking_problem(N, h, substeps, *margins, constraints=constraints)
     if route == "rti":
         # HPIPM (interior point: no active set to warm-start, residuals to 1e-6), and qrqp where it fails
         hpipm = {"iter_max": 50, "mode": "balance", **{f"res_{r}_max": 1e-6 for r in "gbdm"}}
@@ -89,7 +92,10 @@ class _Tracking:
         use_c = s.compiled if s.compiled is not None else compiler() is not None
         self.compiled = use_c and self.route_name == "rti"
         margins = (s.torque_margin, s.normal_margin, s.friction_margin, s.speed_margin)
-        self.route = _route(self.route_name, s.N, s.h, s.substeps, margins, self.compiled)
+        self.route = _route(self.route_name, s.N, s.h, s.substeps, margins, tuple(s.constraints), self.compiled)
+        ocp = self.route.transcription.ocp
+        self.relax = RELAXABLE + tuple(c.name for c, at in ocp.constraints[-len(s.constraints):]) \
+            if s.constraints else RELAXABLE
         self.layout = self.route.transcription.layout
         self.diag = weights.diagonal(s.N)
         self.n_x = self.layout.size
@@ -178,7 +184,7 @@ class RTISolver(_Tracking):
         self.iterations = iterations
 
     def _attempt(self, guess, multipliers, values):
-        return self.route.attempt(guess, max_iter=self.iterations, multipliers=multipliers, relax=RELAXABLE,
+        return self.route.attempt(guess, max_iter=self.iterations, multipliers=multipliers, relax=self.relax,
                                   **values)
 
     def modelled_time(self) -> float:

@@ -81,16 +81,25 @@ class IpoptRoute(NLPRoute):
         IPOPT's convergence tolerance.
     options : dict, optional
         Further IPOPT options.
+    compiled : bool
+        Evaluate the stages and their Jacobians as compiled C
+        (``Transcription.nlp``); needs the limited-memory Hessian.
+    expand : bool
+        Expand the NLP into scalar expressions (slower to build, faster to solve).
     """
 
     name = "ipopt"
 
     def __init__(self, transcription, hessian: str = "exact", max_iter: int = 500, tol: float = 1e-8,
-                 options: dict | None = None):
+                 options: dict | None = None, compiled: bool = False, expand: bool = False):
         if hessian not in ("exact", "limited-memory"):
             raise ConfigError(f"ipopt hessian = {hessian!r}; valid are 'exact', 'limited-memory'")
+        if compiled and hessian == "exact":
+            raise ConfigError("ipopt compiled = True gives first derivatives only: use hessian = 'limited-memory'")
         self.transcription = tr = transcription
         ipopt = {"print_level": 0, "sb": "yes", "max_iter": max_iter, "tol": tol, "acceptable_tol": 1e-6,
                  "hessian_approximation": hessian, **(options or {})}
-        nlp = {"x": tr.w, "p": tr.par, "f": tr.f, "g": tr.g}
-        self.solver = ca.nlpsol("ocp_ipopt", "ipopt", nlp, {"ipopt": ipopt, "print_time": False})
+        f, g = (tr.nlp(compiled=True)[:2]) if compiled else (tr.f, tr.g)
+        nlp = {"x": tr.w, "p": tr.par, "f": f, "g": g}
+        self.solver = ca.nlpsol("ocp_ipopt", "ipopt", nlp, {"ipopt": ipopt, "print_time": False,
+                                                            "expand": expand and not compiled})

@@ -189,7 +189,7 @@ def comparison_table(runs) -> str:
 
 
 def _stops_total(run) -> int | None:
-    return len(run.problem.mission.stops) if run.problem.kind == "waypoints" else None
+    return len(run.problem.mission.stops) or None
 
 
 def _events(events: list) -> str:

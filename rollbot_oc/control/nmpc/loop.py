@@ -9,25 +9,26 @@ from dataclasses import replace
 
 import numpy as np
 
-from rollbot_oc.control.missions import Circle, StopMonitor, Waypoints
 from rollbot_oc.control.nmpc.estimation import TiltEstimator
 from rollbot_oc.control.nmpc.reference import Reference
 from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.tracking import RTISolver, TrackingSolver
 from rollbot_oc.control.ocp import OCPSettings, OrbitEntry, Plan, RestToRest, SolveFailed, quasi_stable_guess
 from rollbot_oc.dynamics import REDUCED, to_reduced
+from rollbot_oc.missions import StopMonitor
 from rollbot_oc.params import RollbotParams
-from rollbot_oc.simulate import Command, Observation
+from rollbot_oc.simulate import Command, ControllerBase, Observation
 
 __all__ = ["NMPC"]
 
 
-class NMPC:
+class NMPC(ControllerBase):
     """Tracking NMPC with minimum-time plans (see module doc); a ``Controller`` for ``simulate``.
 
     Parameters
     ----------
-    mission : Circle or Waypoints
+    mission : Mission
+        Stops (``mission.stops``), an orbit (``mission.orbit``) or gates (``mission.gates``).
     params : RollbotParams, optional
         The robot the controller believes in (level floor by default: the slope is estimated).
     dt : float
@@ -37,19 +38,19 @@ class NMPC:
 
     def __init__(self, mission, params: RollbotParams | None = None, dt: float = 0.01,
                  settings: NMPCSettings | None = None):
-        if not isinstance(mission, (Circle, Waypoints)):
-            raise ValueError(f"mission must be a Circle or Waypoints, got {type(mission).__name__}")
-        if any(not w.stop for w in getattr(mission, "points", ())):
+        if mission.orbit is None and not mission.stops and not mission.gates:
+            raise ValueError(f"mission {mission.kind!r}: the NMPC needs stops, an orbit or gates")
+        if not mission.gates and any(not w.stop for w in mission.waypoints):
             raise ValueError("the NMPC plans stops; pass-through waypoints are for the PID's waypoint layer")
         self.mission = mission
-        self._rule = mission.stop_rule if isinstance(mission, Waypoints) else None
+        self._rule = mission.stop_rule
         self.params = params or RollbotParams()
         self.dt = dt
         self.settings = s = settings or NMPCSettings()
         self.every = max(1, int(round(s.h / dt)))
         if abs(self.every * dt - s.h) > 1e-9:
             raise ValueError(f"NMPC h = {s.h} s must be a whole number of control periods dt = {dt} s")
-        self.weights = s.circle_weights if isinstance(mission, Circle) else s.waypoint_weights
+        self.weights = s.circle_weights if mission.orbit is not None else s.waypoint_weights
         solver = TrackingSolver if s.solver == "ipopt" else RTISolver
         self.solver = solver(self.params, s, self.weights)
         self._hold_diag = s.hold_weights.diagonal(s.N)
@@ -57,7 +58,7 @@ class NMPC:
         self.estimator = TiltEstimator(self.params, dt, s.tilt_process_noise, s.gyro_sigma,
                                        s.tilt_model_error)
         # the legs' planner, built once (its floor tilt is set per plan from the estimate)
-        self._legs = _rest_to_rest(self.params.replace(slope=0.0), s.plan) if isinstance(mission, Waypoints) else None
+        self._legs = _rest_to_rest(self.params.replace(slope=0.0), s.plan) if mission.stops else None
         self.map = None  # set with the plans (for centre-of-curvature plots)
         self.reference = None
         self.plan_time = 0.0
@@ -83,26 +84,25 @@ class NMPC:
         from rollbot_oc.quasi_stable import RadiusMap
 
         self.map = RadiusMap(level)
-        if isinstance(self.mission, Waypoints):
+        if self.mission.stops:
             self.reference = Reference([None] * len(self.mission.stops))
             self._follow_guess(to_reduced(x0), 0.0)  # refined while the robot moves (``_refine``)
             self.plan_time = time.perf_counter() - start  # the first command can be given now
             return self.reference
         # The minimum-time entry takes hundreds of IPOPT iterations; a fixed entry time a little
         # above it, with the least effort, converges in a fraction of the time.
-        settings = self.settings.entry
+        settings, orbit = self.settings.entry, self.mission.orbit
         for duration in self.settings.entry_times:
             intervals = int(round(duration / self.settings.h))
-            entry = _orbit_entry(self.mission.radius, level, replace(settings, N=intervals))
+            entry = _orbit_entry(orbit.radius, level, replace(settings, N=intervals))
             try:
-                plan = entry.solve(x0, self.mission.centre, duration=duration)
+                plan = entry.solve(x0, orbit.centre, duration=duration)
                 break
             except SolveFailed:
                 if duration == self.settings.entry_times[-1]:
                     raise
-        orbit = {"qs": entry.qs_reduced, "centre": self.mission.centre, "phase": plan.extra["phase"],
-                 "Omega": entry.quasi.Omega}
-        self.reference = Reference([(plan, {})], orbit)
+        self.reference = Reference([(plan, {})], {"qs": entry.qs_reduced, "centre": orbit.centre,
+                                                  "phase": plan.extra["phase"], "Omega": entry.quasi.Omega})
         self.plan_time = time.perf_counter() - start
         return self.reference
 
@@ -228,6 +228,7 @@ class NMPC:
         self._pid_goal = None
         self._done = False
         self._finished_at = None
+        self._gates_passed = 0
         self.estimator.reset()
 
     @property
@@ -282,7 +283,7 @@ class NMPC:
 
     def _watch_stop(self, obs: Observation) -> bool:
         """Feed the current stop's monitor (``StopRule``: near it and at rest for 0.5 s); True once reached."""
-        if self.reference is None or isinstance(self.mission, Circle) or self._done:
+        if self.reference is None or not self.mission.stops or self._done:
             return False
         if self._monitor is None:
             self._monitor = StopMonitor(self.reference.segments[self.segment][1]["stop"], self._rule)
@@ -293,7 +294,7 @@ class NMPC:
         """Follow refined legs as they become ready, plan the next leg ahead, leave a stop once it is
         reached, and, if the robot was pushed off its plan or came to rest outside its stop's tolerance,
         bring it to rest and plan a new leg to the same stop from there (``_brake``)."""
-        if self.reference is None or isinstance(self.mission, Circle):
+        if self.reference is None or not self.mission.stops:
             return
         s, i = self.settings, self.segment
         if self._finished_at is not None:  # the last stop is reached: hold there a little longer
@@ -404,10 +405,10 @@ class NMPC:
         # q and -q are the same attitude: give the (continuous) reference the measurement's sign
         if float(Zr[2:6, 0] @ z[2:6]) < 0:
             Zr[2:6] *= -1.0
-        circle = None
-        if isinstance(self.mission, Circle):  # the distance from the circle counts once on the orbit
+        circle, orbit = None, self.mission.orbit
+        if orbit is not None:  # the distance from the circle counts once on the orbit
             on_orbit = (t_now - self.segment_start + s.h * np.arange(s.N + 1)) > self.reference.segments[0][0].T
-            circle = (self.mission.centre, self.mission.radius, self.weights.radial * on_orbit)
+            circle = (orbit.centre, orbit.radius, self.weights.radial * on_orbit)
         x, lam, status, ok, seconds = self.solver.solve(z, Zr, Ur, self.estimator.params(), self.warm, circle, diag)
         compute = seconds if s.realtime else self.solver.modelled_time()
         late = compute > (s.h if s.max_solve_time is None else s.max_solve_time)
@@ -426,7 +427,7 @@ class NMPC:
             self.log["fallback_shifted"] += 1  # keep following the previous solution (its index moves on)
             return
         self.warm, self.current, self.failures = None, None, 0
-        if isinstance(self.mission, Waypoints) and s.fallback == "brake":
+        if self.mission.stops and s.fallback == "brake":
             # the motor's speed ramped to zero for a moment, then the NMPC brings the robot to rest and
             # plans a new leg from there (``_advance_mission``)
             self.log["fallback_brake"] += 1
@@ -445,7 +446,7 @@ class NMPC:
         """Past a leg's end within ``hold_radius`` of its stop, hold the robot where it is: the reference
         position becomes the position it had on arriving, so the NMPC damps the motion instead of chasing
         a few centimetres a single motor cannot correct at rest."""
-        if self.reference is None or isinstance(self.mission, Circle):
+        if self.reference is None or not self.mission.stops:
             return
         plan, info = self.reference.segments[self.segment]
         ended = t_now - self.segment_start + self.settings.h * np.arange(Zr.shape[1]) >= plan.T
@@ -483,14 +484,12 @@ class NMPC:
         The plant's speed loop turns the speed into an acceleration with the current driving speed; the
         NMPC's own record of the command (for its delay compensation) uses the predicted driving speed.
         """
-        goal = self.segment if isinstance(self.mission, Waypoints) else -1
+        goal = self._target_index()
         if self._pid is None or self._pid_goal != goal:
             from rollbot_oc.control.pid import QuasiStablePID
 
-            mission = self.mission if goal < 0 else Waypoints(
-                (self.reference.segments[self.segment][1]["stop"],), stop_tolerance=self.mission.stop_tolerance)
             self._pid, self._pid_goal, self._pid_fresh = QuasiStablePID(
-                mission, self.params, dt=self.dt, radius_map=self.map), goal, True
+                self.mission.leg(goal), self.params, dt=self.dt, radius_map=self.map), goal, True
         if self._pid_fresh:  # take over smoothly from the current driving speed
             self._pid.reset()
             self._pid.omega_cmd = max(float(z[REDUCED.theta_dot]), 0.0)
@@ -500,6 +499,10 @@ class NMPC:
         self.commands[k] = float(np.clip((speed - float(z[REDUCED.theta_dot])) / self.dt, -limit, limit))
         self.commands.pop(k - 50, None)
         return Command(speed=speed)
+
+    def _target_index(self) -> int:
+        """The mission's target in progress: the stop's segment, the next gate, 0 on an orbit."""
+        return self.segment if self.mission.stops else self._gates_passed
 
     def report(self) -> dict:
         """Solve-time statistics (s), solver statuses, fallback counts, stops and plans."""

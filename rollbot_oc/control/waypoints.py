@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rollbot_oc.missions import StopMonitor
+from rollbot_oc.missions import PassMonitor, StopMonitor
 from rollbot_oc.quasi_stable import RadiusMap
 
 __all__ = ["StopPredictor", "Target", "WaypointLayer"]
@@ -139,6 +139,7 @@ class WaypointLayer:
         self._last_miss = math.inf
         self._goal = None  # centre target of the current stop, chosen when its leg starts
         self._monitor = None
+        self._pass = None  # watches the pass-through waypoint in progress
         self.retries = 0
 
     @property
@@ -213,7 +214,9 @@ class WaypointLayer:
         radius = float(self.radius_map.radius(omega0))
         # revolving counter-clockwise, velocity = Omega z x (s - o): s - o points 90 deg clockwise of v
         direction = np.array([wp.velocity[1], -wp.velocity[0]]) / v
-        if np.linalg.norm(np.asarray(position) - wp.point) < self.mission.pass_tolerance:
+        if self._pass is None:
+            self._pass = PassMonitor(wp.point, self.mission.pass_tolerance)
+        if self._pass.update(position):  # passed at its closest approach within the tolerance
             self._advance()
         return Target(wp.point - radius * direction, radius)
 
@@ -221,6 +224,7 @@ class WaypointLayer:
         self.index += 1
         self._last_miss = math.inf
         self._goal = None
+        self._pass = None
         self.phase = "done" if self.index >= len(self.points) else "track"
 
 

@@ -11,8 +11,8 @@ from rollbot_oc.missions.stops import STOP_TOLERANCE, StopMonitor, StopRule, rea
 from rollbot_oc.missions.circle import REACH_HOLD, Circle
 from rollbot_oc.missions.waypoints import Waypoint, Waypoints
 from rollbot_oc.missions.open_loop import OpenLoop
-from rollbot_oc.missions.gates import Gates, gate_passes
+from rollbot_oc.missions.gates import Gates, PassMonitor, gate_passes
 
 __all__ = ["Mission", "register", "mission_kind", "KINDS", "Circle", "Waypoint", "Waypoints", "OpenLoop", "Gates",
-           "gate_passes", "centre_of_curvature", "StopRule", "StopMonitor", "reached_stops", "STOP_TOLERANCE",
+           "gate_passes", "PassMonitor", "centre_of_curvature", "StopRule", "StopMonitor", "reached_stops", "STOP_TOLERANCE",
            "REACH_HOLD"]

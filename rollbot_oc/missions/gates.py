@@ -26,9 +26,9 @@ from rollbot_oc.missions.schema import number, points
 from rollbot_oc.missions.stops import STOP_TOLERANCE
 from rollbot_oc.missions.waypoints import Waypoint
 
-__all__ = ["Gates", "gate_passes", "PASS_SPEED"]
+__all__ = ["Gates", "gate_passes", "PassMonitor", "PASS_SPEED"]
 
-PASS_SPEED = 0.25  # m/s, the PID's speed through a gate (its quasi-stable revolving speed there)
+PASS_SPEED = 0.3  # m/s, the PID's speed through a gate (its quasi-stable revolving speed there)
 
 
 def gate_passes(t, positions, gates, tolerance: float) -> list[dict]:
@@ -72,6 +72,30 @@ def gate_passes(t, positions, gates, tolerance: float) -> list[dict]:
         records.append({"miss": float(distance[k]), "time": float(t[start + k]), "passed": bool(inside.size)})
         start += k
     return records
+
+
+class PassMonitor:
+    """Watches the approach of one point sample by sample (a controller on its measurements): passed at
+    the closest approach within ``tolerance`` (m), once the distance grows again.
+
+    Parameters
+    ----------
+    point : array_like (2,)
+        The point, m.
+    tolerance : float
+        Largest miss, m.
+    """
+
+    def __init__(self, point, tolerance: float):
+        self.point, self.tolerance = np.asarray(point, float), tolerance
+        self.miss = math.inf  # distance at the previous sample, m
+
+    def update(self, position) -> bool:
+        """Feed one position (m); True once the point is passed (the previous sample was its closest)."""
+        miss = float(np.hypot(*(np.asarray(position, float) - self.point)))
+        passed = self.miss < self.tolerance and miss > self.miss
+        self.miss = miss
+        return passed
 
 
 @register

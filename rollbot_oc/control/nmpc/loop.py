@@ -10,16 +10,19 @@ from dataclasses import replace
 import numpy as np
 
 from rollbot_oc.control.nmpc.estimation import TiltEstimator
+from rollbot_oc.control.nmpc.gates import plan_gates
 from rollbot_oc.control.nmpc.reference import Reference
 from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.tracking import RTISolver, TrackingSolver
 from rollbot_oc.control.ocp import OCPSettings, OrbitEntry, Plan, RestToRest, SolveFailed, quasi_stable_guess
 from rollbot_oc.dynamics import REDUCED, to_reduced
-from rollbot_oc.missions import StopMonitor
+from rollbot_oc.missions import PassMonitor, StopMonitor
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.simulate import Command, ControllerBase, Observation
 
-__all__ = ["NMPC"]
+__all__ = ["NMPC", "GATE_REPLANS"]
+
+GATE_REPLANS = 3  # plans through the gates left after the first, when the robot missed one
 
 
 class NMPC(ControllerBase):
@@ -89,6 +92,10 @@ class NMPC(ControllerBase):
             self._follow_guess(to_reduced(x0), 0.0)  # refined while the robot moves (``_refine``)
             self.plan_time = time.perf_counter() - start  # the first command can be given now
             return self.reference
+        if self.mission.gates:  # one minimum-time plan through every gate (``nmpc.gates``)
+            self._follow_gates(to_reduced(x0), 0.0)
+            self.plan_time = time.perf_counter() - start
+            return self.reference
         # The minimum-time entry takes hundreds of IPOPT iterations; a fixed entry time a little
         # above it, with the least effort, converges in a fraction of the time.
         settings, orbit = self.settings.entry, self.mission.orbit
@@ -105,6 +112,50 @@ class NMPC(ControllerBase):
                                                   "phase": plan.extra["phase"], "Omega": entry.quasi.Omega})
         self.plan_time = time.perf_counter() - start
         return self.reference
+
+    # -- gates: one plan through those left, then brought to rest ----------------------------------
+    def _follow_gates(self, z, t_now: float):
+        """Follow the minimum-time plan from ``z`` through the gates not yet passed (on the estimated floor)."""
+        gates = self.mission.gates[self._gates_passed:]
+        settings = replace(self.settings.plan, max_iter=self.settings.entry.max_iter, hessian="exact", speed_margin=0.8)
+        plan = plan_gates(z, gates, self.params.replace(slope=0.0), settings, tilt=self.estimator.tilt.copy())
+        self.log["plan_solve_times"].append(plan.solve_time)
+        self.reference = Reference([(plan, {"gates": gates})])
+        self.segment, self.segment_start = 0, t_now
+        self.warm, self.current = None, None
+
+    def _watch_gates(self, obs: Observation):
+        """Feed the next gate's ``PassMonitor`` with the measured position; count it once passed."""
+        gates = self.mission.gates
+        if self._gates_passed >= len(gates):
+            return
+        if self._gate is None:
+            self._gate = PassMonitor(gates[self._gates_passed], self.mission.pass_tolerance)
+        if self._gate.update(obs.position):
+            self._gates_passed += 1
+            self._gate = None
+
+    def _advance_gates(self, t_now: float, z):
+        """Past the plan's end: with every gate passed, bring the robot to rest (``brake_weights``) and be
+        done once it is at rest (or ``brake_wait`` s later); with gates left, plan again through them
+        from here (at most ``GATE_REPLANS`` times)."""
+        s = self.settings
+        ended = t_now - self.segment_start >= self.reference.segments[0][0].T - 1e-9
+        if self._braking_since is not None:
+            at_rest = (self.params.R * float(np.linalg.norm(z[REDUCED.omega])) < s.recover_speed
+                       and abs(float(z[REDUCED.theta_dot])) < s.recover_drive)
+            self._done = at_rest or t_now - self._braking_since >= s.brake_wait - 1e-9
+        elif self._gates_passed >= len(self.mission.gates) or (ended and self.log["replans"] >= GATE_REPLANS):
+            self._braking_since, self._rest_plan = t_now, None
+            self.warm, self.current = None, None
+        elif ended and t_now - self.segment_start >= self.reference.segments[0][0].T + s.hold_time:
+            try:
+                self._follow_gates(z, t_now)
+                self.log["replans"] += 1
+            except SolveFailed as exc:  # reported; the robot is brought to rest where it is
+                self.log["statuses"].append(f"plan failed: {exc.status}")
+                self.log["plan_failures"] += 1
+                self._braking_since, self._rest_plan = t_now, None
 
     # -- legs: planned while the robot moves --------------------------------------------------------
     def _provisional(self, z, t_now: float):
@@ -229,6 +280,7 @@ class NMPC(ControllerBase):
         self._done = False
         self._finished_at = None
         self._gates_passed = 0
+        self._gate = None  # watches the next gate
         self.estimator.reset()
 
     @property
@@ -247,6 +299,7 @@ class NMPC(ControllerBase):
         self._estimate(seen, z_meas)
         z = self._predict_to_now(z_meas, seen, k)
         reached = self._watch_stop(obs)
+        self._watch_gates(obs)
         if k % self.every == 0:  # stops are left at the solve instants, so legs start on the grid
             self._advance_mission(t_now, obs, reached, z)
         if self._done:
@@ -294,6 +347,8 @@ class NMPC(ControllerBase):
         """Follow refined legs as they become ready, plan the next leg ahead, leave a stop once it is
         reached, and, if the robot was pushed off its plan or came to rest outside its stop's tolerance,
         bring it to rest and plan a new leg to the same stop from there (``_brake``)."""
+        if self.reference is not None and self.mission.gates:
+            self._advance_gates(t_now, z)
         if self.reference is None or not self.mission.stops:
             return
         s, i = self.settings, self.segment

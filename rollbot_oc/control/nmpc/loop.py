@@ -57,6 +57,7 @@ class NMPC(ControllerBase):
         solver = TrackingSolver if s.solver == "ipopt" else RTISolver
         self.solver = solver(self.params, s, self.weights)
         self._hold_diag = s.hold_weights.diagonal(s.N)
+        self._track_diag = self.weights.diagonal(s.N)
         self._brake_diag = s.brake_weights.diagonal(s.N)
         self.estimator = TiltEstimator(self.params, dt, s.tilt_process_noise, s.gyro_sigma,
                                        s.tilt_model_error)
@@ -114,15 +115,31 @@ class NMPC(ControllerBase):
         return self.reference
 
     # -- gates: one plan through those left, then brought to rest ----------------------------------
-    def _follow_gates(self, z, t_now: float):
-        """Follow the minimum-time plan from ``z`` through the gates not yet passed (on the estimated floor)."""
-        gates = self.mission.gates[self._gates_passed:]
-        settings = replace(self.settings.plan, max_iter=self.settings.entry.max_iter, hessian="exact", speed_margin=0.8)
-        plan = plan_gates(z, gates, self.params.replace(slope=0.0), settings, tilt=self.estimator.tilt.copy())
+    def _follow_gates(self, z, t_now: float) -> float:
+        """Plan from ``z`` through the gates not yet passed (on the estimated floor) and follow the plan
+        from the solve instant its modelled compute time has passed; returns that instant, s."""
+        s, gates = self.settings, self.mission.gates[self._gates_passed:]
+        plan = plan_gates(z, gates, self.params.replace(slope=0.0), s.gates, tilt=self.estimator.tilt.copy())
+        self._gate_plans.append(plan.to_dict())
         self.log["plan_solve_times"].append(plan.solve_time)
+        compute = plan.solve_time if s.realtime else plan.iterations * s.plan_iteration_time
+        start = t_now + s.h * math.ceil(compute / s.h - 1e-9)
         self.reference = Reference([(plan, {"gates": gates})])
-        self.segment, self.segment_start = 0, t_now
+        self.segment, self.segment_start = 0, start
         self.warm, self.current = None, None
+        return start
+
+    def _gate_diag(self, local: float) -> np.ndarray:
+        """Tracking weights with ``gate_weight`` added on the position at the two horizon nodes around
+        each planned gate passage (``local``: time on the plan, s)."""
+        s = self.settings
+        diag = self._track_diag.copy()
+        for t_gate in self.reference.segments[0][0].extra["gate_times"]:
+            j = int(math.floor((t_gate - local) / s.h))
+            for node in (j, j + 1):
+                if 0 <= node <= s.N:
+                    diag[node * 10:node * 10 + 2] += s.gate_weight
+        return diag
 
     def _watch_gates(self, obs: Observation):
         """Feed the next gate's ``PassMonitor`` with the measured position; count it once passed."""
@@ -136,26 +153,40 @@ class NMPC(ControllerBase):
             self._gate = None
 
     def _advance_gates(self, t_now: float, z):
-        """Past the plan's end: with every gate passed, bring the robot to rest (``brake_weights``) and be
-        done once it is at rest (or ``brake_wait`` s later); with gates left, plan again through them
-        from here (at most ``GATE_REPLANS`` times)."""
+        """After the last gate, or a plan's end (``hold_time`` past it) with a gate missed, stop the motor:
+        its speed ramped to zero at ``brake_accel`` and held there (``_stop_motor``).  With every gate
+        passed, done once the robot is at rest (or ``brake_wait`` s later); with gates left, from rest
+        (or ``brake_wait`` s later) a new plan through them, followed once its modelled compute time has
+        passed (at most ``GATE_REPLANS`` of them)."""
         s = self.settings
-        ended = t_now - self.segment_start >= self.reference.segments[0][0].T - 1e-9
-        if self._braking_since is not None:
-            at_rest = (self.params.R * float(np.linalg.norm(z[REDUCED.omega])) < s.recover_speed
-                       and abs(float(z[REDUCED.theta_dot])) < s.recover_drive)
-            self._done = at_rest or t_now - self._braking_since >= s.brake_wait - 1e-9
-        elif self._gates_passed >= len(self.mission.gates) or (ended and self.log["replans"] >= GATE_REPLANS):
-            self._braking_since, self._rest_plan = t_now, None
-            self.warm, self.current = None, None
-        elif ended and t_now - self.segment_start >= self.reference.segments[0][0].T + s.hold_time:
+        left = self._gates_passed < len(self.mission.gates)
+        if self._braking_since is None:
+            if not left or t_now - self.segment_start >= self.reference.segments[0][0].T + s.hold_time - 1e-9:
+                self._stop_motor(t_now, z)
+            return
+        at_rest = (self.params.R * float(np.linalg.norm(z[REDUCED.omega])) < s.recover_speed
+                   and abs(float(z[REDUCED.theta_dot])) < s.recover_drive)
+        settled = at_rest or t_now - self._braking_since >= s.brake_wait - 1e-9
+        if not left or self.log["replans"] >= GATE_REPLANS:
+            self._done = settled
+        elif settled:
+            self.log["replans"] += 1
             try:
-                self._follow_gates(z, t_now)
-                self.log["replans"] += 1
-            except SolveFailed as exc:  # reported; the robot is brought to rest where it is
+                self.pid_until = self._follow_gates(z, t_now)  # the motor held still until the plan is ready
+                self._braking_since = None
+            except SolveFailed as exc:  # reported; the robot stays at rest, and tries again
                 self.log["statuses"].append(f"plan failed: {exc.status}")
                 self.log["plan_failures"] += 1
-                self._braking_since, self._rest_plan = t_now, None
+                self._braking_since = t_now
+
+    def _stop_motor(self, t_now: float, z):
+        """Ramp the motor's speed to zero (``brake_accel``) and hold it there: a robot passing gates
+        comes to rest this way (the braking weights, from the speed a minimum-time plan ends at, chatter
+        between the motor's limits)."""
+        s = self.settings
+        self._ramp, self.pid_until = (t_now, float(z[REDUCED.theta_dot])), t_now + s.brake_wait + s.h
+        self._braking_since, self._rest_plan = t_now, None
+        self.warm, self.current = None, None
 
     # -- legs: planned while the robot moves --------------------------------------------------------
     def _provisional(self, z, t_now: float):
@@ -262,6 +293,7 @@ class NMPC(ControllerBase):
             self._refine_at = None  # when to refine the quasi-stable guess followed
             self._braking_since = None  # when the robot began to be brought to rest
             self._anchor = None
+            self._gate_plans = []  # every plan through the gates, for the report
             self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0,
                         "fallback_brake": 0, "late": 0, "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [],
                         "plan_failures": 0, "plan_wait": 0.0, "brakes": 0, "plan_late": 0, "stones": 0, "unfit": 0}
@@ -457,6 +489,8 @@ class NMPC(ControllerBase):
             self._settle(Zr, t_now, z)
             if self._anchor is not None:  # holding at a stop
                 diag = self._hold_diag
+            elif self.mission.gates:
+                diag = self._gate_diag(t_now - self.segment_start)
         # q and -q are the same attitude: give the (continuous) reference the measurement's sign
         if float(Zr[2:6, 0] @ z[2:6]) < 0:
             Zr[2:6] *= -1.0
@@ -566,7 +600,7 @@ class NMPC(ControllerBase):
         for st in self.log["statuses"]:
             statuses[st] = statuses.get(st, 0) + 1
         legs = [seg for seg in self.reference.segments if seg is not None] if self.reference else []
-        plans = [seg[0].to_dict() for seg in legs]
+        plans = [seg[0].to_dict() for seg in legs] if not self.mission.gates else list(self._gate_plans)
         plan_times = np.array(self.log["plan_solve_times"]) if self.log["plan_solve_times"] else np.zeros(1)
         return {
             "stops": list(self.stops),

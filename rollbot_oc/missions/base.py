@@ -100,6 +100,13 @@ class Mission:
         """
         return {}
 
+    def verdict(self, metrics: dict) -> list[str]:
+        """How a run went, in a few words (``summary.run_verdict``), from its ``metrics``."""
+        from rollbot_oc.summary import number
+
+        return [f"completed in {number(metrics.get('completion_time'), '.1f', 's')}" if metrics["completed"] else
+                f"NOT completed in {number(metrics['duration'], '.1f', 's')}"]
+
     # -- what the controllers ask ---------------------------------------------------------------
     @property
     def stops(self) -> list:

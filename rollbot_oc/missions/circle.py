@@ -93,6 +93,21 @@ class Circle(Mission):
         """The circle itself."""
         return self
 
+    def verdict(self, metrics: dict) -> list[str]:
+        """On the circle and when, the deviations; or why not completed."""
+        from rollbot_oc.summary import number
+
+        m = metrics
+        if m["completed"]:
+            return [f"on the circle after {number(m['reach_time'], '.1f', 's')}",
+                    f"deviation {number(m['avg_deviation'], '.2f', 'cm', 100)} average, "
+                    f"{number(m['max_deviation'], '.2f', 'cm', 100)} largest"]
+        if m.get("reach_time") is None:
+            return [f"NOT completed: not on the circle within {number(m['duration'], '.1f', 's')}"]
+        return [f"NOT completed: on the circle after {number(m['reach_time'], '.1f', 's')}, but the run ended at "
+                f"{number(m['duration'], '.1f', 's')}, before the deviations could be measured (from "
+                f"{number(m.get('settle_time'), '.0f', 's')} on)"]
+
     def deviation(self, positions) -> np.ndarray:
         """Distance (m) of each position (2, n) from the target circle."""
         p = np.asarray(positions, float)

@@ -154,6 +154,16 @@ class Gates(Mission):
     def pass_tolerance(self) -> float:
         return self.tolerance
 
+    def verdict(self, metrics: dict) -> list[str]:
+        """Completed and when, or how many gates were passed; the worst miss."""
+        from rollbot_oc.summary import number
+
+        misses = metrics["gate_misses"]
+        head = (f"completed in {number(metrics['completion_time'], '.1f', 's')}" if metrics["completed"] else
+                f"NOT completed: {metrics['gates_passed']} of {len(self.points)} gates passed in "
+                f"{number(metrics['duration'], '.1f', 's')}")
+        return [head, f"worst gate miss {number(max(misses), '.1f', 'cm', 100)}" if misses else ""]
+
     def leg(self, index: int) -> "Gates":
         """The gates from ``index`` on (the last gate if all are passed)."""
         return Gates(self.points[min(index, len(self.points) - 1):], self.tolerance, self.speed)

@@ -111,6 +111,16 @@ class Waypoints(Mission):
     def pass_tolerance(self) -> float:
         return self.tolerance
 
+    def verdict(self, metrics: dict) -> list[str]:
+        """Completed and when, or how many stops were reached; the worst stop error."""
+        from rollbot_oc.summary import number
+
+        errors = metrics["stop_errors"]
+        worst = f"worst stop error {number(max(errors), '.1f', 'cm', 100)}" if errors else ""
+        head = (f"completed in {number(metrics['completion_time'], '.1f', 's')}" if metrics["completed"] else
+                f"NOT completed: {len(errors)} of {len(self.stops)} stops in {number(metrics['duration'], '.1f', 's')}")
+        return [head, worst]
+
     def leg(self, index: int) -> "Waypoints":
         """The stop ``index`` alone."""
         return Waypoints((self.stops[index],), stop_tolerance=self.stop_tolerance)

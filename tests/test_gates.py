@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rollbot_oc.errors import ConfigError
-from rollbot_oc.missions import KINDS, Circle, Gates, Mission, gate_passes, mission_kind, register
+from rollbot_oc.missions import KINDS, Circle, Mission, gate_passes, mission_kind, register
 from rollbot_oc.missions.schema import number, point
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.problems import compute_metrics, problem_from_dict, run_problem

@@ -11,7 +11,6 @@ finds a kind by name (``mission_kind``) and never looks at which kind it has.
 
 from __future__ import annotations
 
-import math
 from typing import ClassVar
 
 import numpy as np
@@ -177,10 +176,3 @@ def path_length(start, points) -> float:
     """Length of the polyline from ``start`` through ``points``, m."""
     path = [np.asarray(start, float)] + [np.asarray(p, float) for p in points]
     return sum(float(np.linalg.norm(b - a)) for a, b in zip(path[:-1], path[1:]))
-
-
-def finite_positive(value, name: str) -> float:
-    """``value`` as a finite length > 0 m (a ``ValueError`` naming ``name`` otherwise)."""
-    if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-        raise ValueError(f"{name} = {value!r} must be > 0 m")
-    return float(value)

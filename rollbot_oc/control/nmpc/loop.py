@@ -75,7 +75,8 @@ class NMPC(ControllerBase):
 
         Stops: the quasi-stable guess of the first leg (a fraction of a second),
         refined while the robot moves (see ``plan_handover``); every later leg
-        is planned during the one before.  Circles: the entry onto the orbit.
+        is planned during the one before.  Circles: the entry onto the orbit.  Gates: the
+        minimum-time plan through them (``nmpc.gates``), followed once its modelled compute time has passed.
         ``plan_time`` is the computation before the first command, s.
 
         Raises

@@ -8,12 +8,12 @@ import time
 
 from rollbot_oc.dynamics import rest_state
 from rollbot_oc.params import RollbotParams
-from rollbot_oc.simulate import Command, simulate
+from rollbot_oc.simulate import Command, ControllerBase, simulate
 
 DURATION, REPEATS = 60.0, 7
 
 
-class SpeedRamp:
+class SpeedRamp(ControllerBase):
     """The cheapest possible controller, so the figure measures the plant and the loop."""
 
     def reset(self):

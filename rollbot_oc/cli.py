@@ -253,7 +253,7 @@ def _cmd_run(args) -> int:
 
     problem = _load_scenario(args)
     out = output_folder(args.out)
-    if problem.kind == "open_loop":
+    if not problem.mission.closed_loop:
         if args.duration is not None:
             raise ConfigError(f"--duration does not apply to the open-loop problem {problem.name}: each speed runs "
                               "until two revolutions are measured")
@@ -278,7 +278,7 @@ def _cmd_compare(args) -> int:
     from rollbot_oc.summary import compare_text, comparison_row, comparison_table
 
     problem = _load_scenario(args)
-    if problem.kind == "open_loop":
+    if not problem.mission.closed_loop:
         raise ConfigError(f"{args.problem}: an open-loop problem has no controller to compare")
     out = output_folder(args.out)
     runs = compare(problem, seed=args.seed, show_progress=_show_progress(args), nmpc_options=_nmpc_options(args))

@@ -233,14 +233,14 @@ def plot_comparison(runs, path=None, title: str | None = None):
         axt.grid(alpha=0.3)
         time_axes.append(axt)
     mission = problem.mission
-    if problem.kind == "waypoints":
-        tx, ty = np.asarray(mission.stops).T
-        ax.plot(tx, ty, "x", color=TARGET, ms=10, mew=2, label="stops")
-        for i, (x, y) in enumerate(mission.stops, 1):
+    if mission.targets:
+        tx, ty = np.asarray(mission.targets).T
+        ax.plot(tx, ty, "x", color=TARGET, ms=10, mew=2, label="stops" if mission.stops else "gates")
+        for i, (x, y) in enumerate(mission.targets, 1):
             ax.annotate(str(i), (x, y), xytext=(6, 4), textcoords="offset points", color=TARGET, fontsize=9)
-    elif problem.kind == "circle":
-        a = np.linspace(0.0, 2 * np.pi, 200)
-        ax.plot(mission.centre[0] + mission.radius * np.cos(a), mission.centre[1] + mission.radius * np.sin(a),
+    if mission.orbit is not None:
+        a, orbit = np.linspace(0.0, 2 * np.pi, 200), mission.orbit
+        ax.plot(orbit.centre[0] + orbit.radius * np.cos(a), orbit.centre[1] + orbit.radius * np.sin(a),
                 color=TARGET, ls="--", lw=1.0, label="target circle")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
@@ -270,8 +270,8 @@ def save_run_figures(run, folder) -> list[Path]:
     from rollbot_oc.summary import run_title
 
     stem = f"{run.problem.name}_{run.controller}"
-    targets = run.problem.mission.stops if run.problem.kind == "waypoints" else None
-    circle = run.problem.mission if run.problem.kind == "circle" else None
+    targets = run.problem.mission.targets or None
+    circle = run.problem.mission.orbit
     title = run_title(run)
     paths = [folder / f"{stem}_top.png", folder / f"{stem}_time.png", folder / f"{stem}_energy.png"]
     figures = [plot_top_view(run.result, centres=run.centres, targets=targets, circle=circle, title=title,

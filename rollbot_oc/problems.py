@@ -4,7 +4,8 @@ Schema (TOML; SI units, degrees only in keys ending in ``_deg``)::
 
     name        = "circle_R035"          # required: letters, digits, _ and - (it names the output files)
     description = "..."                  # optional
-    kind        = "circle"               # required: "circle", "waypoints" or "open_loop"
+    kind        = "circle"               # required: a mission kind ("circle", "waypoints", "open_loop",
+                                         # "gates"; rollbot_oc.missions.KINDS)
     duration    = 300.0                  # required: longest run, s, in [1, 3600]
     dt          = 0.01                   # optional: control period, s
 
@@ -16,20 +17,11 @@ Schema (TOML; SI units, degrees only in keys ending in ``_deg``)::
     slope_deg     = 1.0
     slope_dir_deg = -45.0                # downhill direction
 
-    [circle]                             # kind = "circle": revolve about a set point
-    centre      = [0.0, 0.0]             # m
-    radius      = 0.35                   # m, within the robot's quasi-stable range [R tan(phi), R0(max_speed)]
-    settle_time = 120.0                  # s: deviations are measured after this (and after reaching)
-    reach_tolerance = 0.05               # m: "reached" = within this of the circle for 10 s
-
-    [waypoints]                          # kind = "waypoints": stop at each point in turn
-    stops = [[0.0, 0.0], [0.0, 1.2]]     # m
-    stop_tolerance = 0.07                # m: a stop is reached within this, at rest (speed < 5 mm/s,
-                                         # driving speed < 0.05 rad/s) for 0.5 s
-
-    [open_loop]                          # kind = "open_loop": constant driving speeds
-    speeds    = [0.5, 1.0, 3.0]          # rad/s
-    ramp_rate = 0.5                      # rad/s^2
+    [<kind>]                             # required: the mission's table, its schema in its module:
+                                         # rollbot_oc.missions.circle ([circle]: centre, radius, ...),
+                                         # .waypoints ([waypoints]: stops, stop_tolerance),
+                                         # .open_loop ([open_loop]: speeds, ramp_rate),
+                                         # .gates ([gates]: points, tolerance)
 
     [sensor]                             # optional: how the controller learns the state (seeded)
     mode           = "mocap"             # "mocap" (default), "imu" or "imu+mocap"
@@ -66,12 +58,12 @@ Schema (TOML; SI units, degrees only in keys ending in ``_deg``)::
 Unknown keys and tables, missing required keys and impossible values are
 rejected on load with a ``ConfigError`` (a ``ValueError``) naming the file,
 the key and the valid range.  Each check is a small function beside the key
-it checks (``_check_name``, ``check_duration``, ``_check_radius``, ...).
+it checks (``_check_name``, ``check_duration``, ...; a
+mission's table by its kind's ``from_table``).
 """
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -79,15 +71,17 @@ from pathlib import Path
 
 import numpy as np
 
-from rollbot_oc.control.missions import (
-    STOP_TOLERANCE, Circle, Waypoints, centre_of_curvature, reached_stops,
-)
-from rollbot_oc.dynamics import OMEGA, rest_state
-from rollbot_oc.errors import ConfigError, NumericalFailure
+from rollbot_oc.dynamics import rest_state
+from rollbot_oc.errors import ConfigError
 from rollbot_oc.estimation import EstimatorSettings
 from rollbot_oc.onboard import OnboardSensing
+from rollbot_oc.missions import KINDS, REACH_HOLD, Mission, centre_of_curvature, mission_kind
+from rollbot_oc.missions.schema import check_keys as _check_keys
+from rollbot_oc.missions.schema import number as _number
+from rollbot_oc.missions.schema import point
+from rollbot_oc.missions.schema import table as _table
 from rollbot_oc.params import RollbotParams, read_toml
-from rollbot_oc.progress import RunProgress, progress_bar, working
+from rollbot_oc.progress import RunProgress, working
 from rollbot_oc.sensors import MODES, EncoderModel, ImuModel, MocapModel, SensingConfig
 from rollbot_oc.simulate import Sensor, SimulationResult, simulate
 from rollbot_oc.summary import comparison_row, comparison_table
@@ -96,20 +90,13 @@ __all__ = ["Problem", "load_problem", "make_controller", "run_problem", "run_ope
            "compare", "comparison_row", "comparison_table",  # the last two live in summary
            "CONTROLLERS", "REACH_HOLD", "DURATION_RANGE", "check_duration"]
 
-KINDS = ("circle", "waypoints", "open_loop")
 CONTROLLERS = ("pid", "nmpc")
-REACH_HOLD = 10.0  # s the robot must stay within reach_tolerance of the circle to count as arrived
 DURATION_RANGE = (1.0, 3600.0)  # s: a run's length, from a problem file or an option (--duration)
-POSITION_LIMIT = 1e4  # m: largest coordinate of a start, centre or stop
 
-_TOP_KEYS = {"name", "description", "kind", "duration", "dt", "start", "floor", "circle", "waypoints",
-             "open_loop", "sensor", "params"}
-_TABLE_KEYS = {
+_COMMON_KEYS = {"name", "description", "kind", "duration", "dt", "start", "floor", "sensor", "params"}
+_TABLE_KEYS = {  # the common tables; each mission kind's table has its own keys (``Mission.keys``)
     "start": {"position", "heading_deg"},
     "floor": {"slope_deg", "slope_dir_deg"},
-    "circle": {"centre", "radius", "settle_time", "reach_tolerance"},
-    "waypoints": {"stops", "stop_tolerance"},
-    "open_loop": {"speeds", "ramp_rate"},
     "sensor": {"mode", "position_noise", "angle_noise", "gyro_noise", "speed_noise", "latency", "encoder_counts",
                "imu", "mocap"},
 }
@@ -123,7 +110,8 @@ class Problem:
     Attributes
     ----------
     name, description : str
-    kind : {"circle", "waypoints", "open_loop"}
+    kind : str
+        The mission's kind (``mission.kind``).
     duration : float
         Longest run, s.
     dt : float
@@ -134,15 +122,8 @@ class Problem:
         Initial shell-centre position (at rest, pendulum down), m.
     start_heading : float
         Initial motor-axis azimuth, rad.
-    mission : Circle, Waypoints or None
-    settle_time : float
-        Circle problems: deviations are measured after this time, s.
-    reach_tolerance : float
-        Circle problems: distance from the circle that counts as arrived, m.
-    speeds : tuple of float
-        Open-loop problems: driving speeds, rad/s.
-    ramp_rate : float
-        Open-loop problems: driving-speed ramp, rad/s^2.
+    mission : Mission
+        What is asked, and how a run is measured (``rollbot_oc.missions``).
     sensor : dict
         ``Sensor`` settings (noise, latency) of mode ``"mocap"``; the seed comes with each run.
     sensing : SensingConfig
@@ -160,11 +141,7 @@ class Problem:
     dt: float = 0.01
     start_position: np.ndarray = field(default_factory=lambda: np.zeros(2))
     start_heading: float = 0.0
-    mission: Circle | Waypoints | None = None
-    settle_time: float = 0.0
-    reach_tolerance: float = 0.05
-    speeds: tuple = ()
-    ramp_rate: float = 0.5
+    mission: Mission | None = None
     sensor: dict = field(default_factory=dict)
     sensing: SensingConfig = field(default_factory=SensingConfig)
     source: str = "<problem>"
@@ -218,68 +195,6 @@ def _check_damping(params: RollbotParams, source: str) -> None:
                           "the NMPC and the open-loop theory use the quasi-stable states, which need it)")
 
 
-@functools.lru_cache(maxsize=32)
-def _radius_range(params: RollbotParams) -> tuple[float, float]:
-    """The robot's quasi-stable radii ``[R_min, R_max]`` (slow branch, level floor), m."""
-    from rollbot_oc.quasi_stable import RadiusMap
-
-    radius_map = RadiusMap(params.replace(slope=0.0))
-    return radius_map.R_min, radius_map.R_max
-
-
-def _check_radius(table: dict, params: RollbotParams, where: str) -> float:
-    """The circle's radius, m: within the quasi-stable range of this robot, where it can revolve steadily."""
-    radius = _number(table, "radius", where, 0.0, POSITION_LIMIT, required=True)
-    low, high = _radius_range(params)
-    if not low <= radius <= high:
-        raise ConfigError(f"{where}: key 'radius' = {radius!r} m is out of range: valid for this robot is "
-                          f"[{low:.4f}, {high:.4f}] m (its quasi-stable radii, driving speeds 0 to "
-                          f"{params.max_speed:.4g} rad/s)")
-    return radius
-
-
-def _number(data, key, source, low=None, high=None, integer=False, required=False, default=None):
-    if key not in data:
-        if required:
-            raise ConfigError(f"{source}: missing required key '{key}'")
-        return default
-    value = data[key]
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ConfigError(f"{source}: key '{key}' = {value!r} must be a finite number")
-    if integer and int(value) != value:
-        raise ConfigError(f"{source}: key '{key}' = {value!r} must be a whole number")
-    if (low is not None and value < low) or (high is not None and value > high):
-        raise ConfigError(f"{source}: key '{key}' = {value!r} is out of range: valid is [{low}, {high}]")
-    return int(value) if integer else float(value)
-
-
-def _points(data, key, source, count=None):
-    value = data.get(key)
-    ok = isinstance(value, list) and value and all(
-        isinstance(p, list) and len(p) == 2
-        and all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c)
-                and abs(c) <= POSITION_LIMIT for c in p)
-        for p in value)
-    if not ok or (count is not None and len(value) != count):
-        raise ConfigError(f"{source}: key '{key}' = {value!r} must be a list of [x, y] pairs in m, "
-                          f"coordinates in [-{POSITION_LIMIT:g}, {POSITION_LIMIT:g}]")
-    return [np.array(p, float) for p in value]
-
-
-def _table(data: dict, key: str, source: str) -> dict:
-    """The sub-table ``[key]`` (empty if absent)."""
-    value = data.get(key, {})
-    if not isinstance(value, dict):
-        raise ConfigError(f"{source}: '{key}' = {value!r} must be a table ([{key}])")
-    return value
-
-
-def _check_keys(data: dict, allowed: set, source: str):
-    unknown = sorted(set(data) - allowed)
-    if unknown:
-        raise ConfigError(f"{source}: unknown key(s) {', '.join(unknown)}; valid keys are {', '.join(sorted(allowed))}")
-
-
 def load_problem(path: str | Path, base: RollbotParams | None = None) -> Problem:
     """Read and validate a problem file (schema in the module doc).
 
@@ -296,15 +211,15 @@ def load_problem(path: str | Path, base: RollbotParams | None = None) -> Problem
 
 def problem_from_dict(data: dict, source: str = "<problem>", base: RollbotParams | None = None) -> Problem:
     """Validate a problem given as a mapping (the parsed TOML); see ``load_problem``."""
-    _check_keys(data, _TOP_KEYS, source)
-    for table, keys in _TABLE_KEYS.items():
+    _check_keys(data, _COMMON_KEYS | set(KINDS), source)
+    tables = {**_TABLE_KEYS, **{name: cls.keys for name, cls in KINDS.items()}}
+    for table, keys in tables.items():
         _check_keys(_table(data, table, source), keys, f"{source} [{table}]")
     if "name" not in data:
         raise ConfigError(f"{source}: missing required key 'name'")
     name = _check_name(data["name"], source)
     kind = data.get("kind")
-    if kind not in KINDS:
-        raise ConfigError(f"{source}: key 'kind' = {kind!r}; valid are {', '.join(KINDS)}")
+    mission_class = mission_kind(kind, source)
     if kind not in data:
         raise ConfigError(f"{source}: kind = '{kind}' needs a [{kind}] table")
     description = data.get("description", "")
@@ -316,7 +231,7 @@ def problem_from_dict(data: dict, source: str = "<problem>", base: RollbotParams
     dt = _number(data, "dt", source, 1e-3, 0.1, default=0.01)
     params = _problem_params(data, source, base)
     start = data.get("start", {})
-    position = _points({"p": [start.get("position", [0.0, 0.0])]}, "p", f"{source} [start] position")[0]
+    position = point(start, "position", f"{source} [start]")
     heading = math.radians(_number(start, "heading_deg", f"{source} [start]", -360.0, 360.0, default=0.0))
     sensor_table = data.get("sensor", {})
     sensor = {key: _number(sensor_table, key, f"{source} [sensor]", 0.0, 1.0) for key in
@@ -326,23 +241,8 @@ def problem_from_dict(data: dict, source: str = "<problem>", base: RollbotParams
     sensing = _sensing(sensor_table, f"{source} [sensor]", dt)
     common = dict(name=name, kind=kind, duration=duration, dt=dt, params=params, description=description,
                   start_position=position, start_heading=heading, sensor=sensor, sensing=sensing, source=source)
-    table = data[kind]
-    where = f"{source} [{kind}]"
-    if kind == "circle":
-        centre = _points({"c": [table.get("centre", [0.0, 0.0])]}, "c", f"{where} centre")[0]
-        radius = _check_radius(table, params, where)
-        settle = _number(table, "settle_time", where, 0.0, duration, default=0.0)
-        tol = _number(table, "reach_tolerance", where, 1e-3, 10.0, default=0.05)
-        return Problem(mission=Circle(centre, radius), settle_time=settle, reach_tolerance=tol, **common)
-    if kind == "waypoints":
-        tolerance = _number(table, "stop_tolerance", where, 1e-3, 1.0, default=STOP_TOLERANCE)
-        return Problem(mission=Waypoints(tuple(_points(table, "stops", where)), stop_tolerance=tolerance), **common)
-    speeds = table.get("speeds")
-    if not (isinstance(speeds, list) and speeds):
-        raise ConfigError(f"{where}: key 'speeds' = {speeds!r} must be a non-empty list of driving speeds in rad/s")
-    speeds = tuple(_number({"s": s}, "s", f"{where} speeds", 1e-3, params.max_speed) for s in speeds)
-    ramp = _number(table, "ramp_rate", where, 1e-3, 100.0, default=0.5)
-    return Problem(speeds=speeds, ramp_rate=ramp, **common)
+    mission = mission_class.from_table(data[kind], f"{source} [{kind}]", params, duration)
+    return Problem(mission=mission, **common)
 
 
 def _sensing(table: dict, where: str, dt: float) -> SensingConfig:
@@ -482,7 +382,7 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
         On an open-loop problem, a duration out of range or a controller that
         cannot be built for the problem (before anything runs).
     """
-    if problem.kind == "open_loop":
+    if not problem.mission.closed_loop:
         raise ConfigError(f"{problem.source}: open-loop problems have no controller; use run_open_loop")
     if duration is not None:
         problem = problem.with_duration(duration)
@@ -493,12 +393,10 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
         sensor = OnboardSensing(problem.sensing, believed, problem.dt, seed=seed, settings=estimator)
     else:
         sensor = Sensor(seed=seed, **problem.sensor)
-    prepare = getattr(ctrl, "prepare", None)
     label = f"{problem.name} {name}"
-    if callable(prepare):  # offline planning happens before the run starts
-        with working(f"{label}: planning", show_progress):
-            prepare(problem.initial_state())
-    stops = len(problem.mission.stops) if problem.kind == "waypoints" else 0
+    with working(f"{label}: planning", show_progress):  # offline planning happens before the run starts
+        ctrl.prepare(problem.initial_state())
+    stops = len(problem.mission.stops)
     with RunProgress(problem.duration, label, stops, show_progress) as progress:
         start = time.perf_counter()
         result = simulate(problem.initial_state(), problem.duration, params=problem.params,
@@ -506,7 +404,7 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
                           kicks=kicks)
         wall = time.perf_counter() - start
         progress.finish(float(result.t[-1]), result.info)
-    centres = _centres(result, getattr(ctrl, "map", None))
+    centres = _centres(result, ctrl.map)
     metrics = compute_metrics(problem, result, centres)
     metrics.update({k: v for k, v in result.info.items() if k != "stops"})
     metrics.update(controller=name, seed=seed, wall_time=wall)
@@ -553,112 +451,20 @@ def compute_metrics(problem: Problem, result: SimulationResult, centres=None) ->
     if result.estimation is not None:
         error = result.estimation.position_error(result.x)
         out.update(estimation_error_max=float(error.max()), estimation_error_final=float(error[-1]))
-    mission = problem.mission
-    if isinstance(mission, Circle):
-        out.update(_circle_metrics(problem, mission, result))
-    elif isinstance(mission, Waypoints):
-        out.update(_waypoint_metrics(problem, mission, result))
+    out.update(problem.mission.metrics(result))
     out["completed"] = bool(out["completed"] and not result.events)
     return out
-
-
-def _circle_metrics(problem: Problem, circle: Circle, result: SimulationResult) -> dict:
-    t, s = result.t, result.position
-    deviation = circle.deviation(s)
-    inside = deviation < problem.reach_tolerance
-    hold = int(round(REACH_HOLD / result.dt))
-    # first index from which the robot stays within tolerance for REACH_HOLD seconds
-    run = np.convolve(inside.astype(int), np.ones(hold, int), mode="valid") if len(inside) >= hold else np.array([])
-    reached = np.flatnonzero(run == hold)
-    reach_time = float(t[reached[0]]) if reached.size else None
-    start_distance = float(circle.deviation(s[:, :1])[0])
-    measure_from = max(problem.settle_time, reach_time if reach_time is not None else problem.settle_time)
-    window = t >= measure_from
-    out = {"reach_time": reach_time, "completion_time": reach_time, "settle_time": measure_from,
-           "avg_deviation": None, "max_deviation": None}
-    if reach_time is not None and reach_time > 0:
-        out["avg_speed"] = max(start_distance - problem.reach_tolerance, 0.0) / reach_time
-    if window.any() and t[-1] - measure_from >= REACH_HOLD:
-        out["avg_deviation"] = float(deviation[window].mean())
-        out["max_deviation"] = float(deviation[window].max())
-    out["completed"] = reach_time is not None and out["avg_deviation"] is not None
-    return out
-
-
-def _waypoint_metrics(problem: Problem, waypoints: Waypoints, result: SimulationResult) -> dict:
-    """Stops reached by the true trajectory (``StopRule``: near the waypoint and at rest for 0.5 s), in order."""
-    centre_speed = problem.params.R * np.hypot(result.x[OMEGA][0], result.x[OMEGA][1])
-    stops = reached_stops(result.t, result.position, centre_speed, result.driving_speed, waypoints.stops,
-                          waypoints.stop_rule)
-    errors = [float(stop["error"]) for stop in stops]
-    out = {"stop_errors": errors, "stop_times": [float(stop["time"]) for stop in stops]}
-    if result.estimation is not None:  # the robot's belief is no measurement: the true position counts
-        out.update(_onboard_stop_metrics(stops, result))
-    if len(stops) == len(waypoints.stops):
-        path = [problem.start_position] + waypoints.stops
-        length = sum(float(np.linalg.norm(b - a)) for a, b in zip(path[:-1], path[1:]))
-        out["completion_time"] = float(stops[-1]["time"])
-        out["avg_speed"] = length / out["completion_time"]
-        out["completed"] = True
-    return out
-
-
-def _onboard_stop_metrics(stops: list, result: SimulationResult) -> dict:
-    """Stop errors of the true position, and how far the estimate was off at each stop (onboard sensing)."""
-    record = result.estimation
-    steps = [min(int(round(stop["time"] / result.dt)), len(record) - 1) for stop in stops]
-    truth = [result.x[0:2, k] for k in steps]
-    estimated = [record.estimate[0:2, k] for k in steps]
-    return {
-        "stop_errors": [float(np.linalg.norm(s - np.asarray(stop["point"]))) for s, stop in zip(truth, stops)],
-        "estimated_stop_errors": [float(np.linalg.norm(e - np.asarray(stop["point"])))
-                                  for e, stop in zip(estimated, stops)],
-        "estimation_errors": [float(np.linalg.norm(s - e)) for s, e in zip(truth, estimated)],
-        "max_estimation_error": max((float(np.linalg.norm(s - e)) for s, e in zip(truth, estimated)), default=None),
-        "stop_position_std": [float(np.sqrt(np.trace(record.position_covariance[k]))) for k in steps],
-    }
 
 
 def run_open_loop(problem: Problem, show_progress: bool | None = None) -> dict:
     """Run an open-loop problem: each driving speed measured in simulation against the quasi-stable theory.
 
-    ``show_progress``: a bar over the speeds on stderr, as for ``run_problem``.
-
-    Returns
-    -------
-    dict
-        ``runs``: for each speed the measured ``R0``, ``Omega``, ``xi`` and
-        ``settled``, the theory's values (``*_theory``) and the relative errors
-        ``R0_error`` and ``Omega_error``; ``max_R0_error`` over all speeds.
-        A speed whose run left the no-slip model has nulls and an ``error``
-        (and ``completed`` is False).
+    ``show_progress``: a bar over the speeds on stderr, as for ``run_problem``.  The run and its
+    result (a dict of measured and theoretical values per speed) are ``missions.OpenLoop.run``'s.
     """
-    from rollbot_oc.experiments import OpenLoopMeasurement, check_open_loop, open_loop_run
-    from rollbot_oc.quasi_stable import quasi_stable_curve
-
-    if problem.kind != "open_loop":
+    if problem.mission.closed_loop:
         raise ConfigError(f"{problem.source}: kind = '{problem.kind}' is not an open-loop problem")
-    for speed in problem.speeds:
-        check_open_loop(speed, problem.params, ramp_rate=problem.ramp_rate)
-    theory = quasi_stable_curve(problem.speeds, problem.params.replace(slope=0.0))
-    runs = []
-    for speed, qs in progress_bar(list(zip(problem.speeds, theory)), show_progress, desc=f"{problem.name}",
-                                  unit="speed"):
-        try:
-            measured, _ = open_loop_run(speed, problem.params, ramp_rate=problem.ramp_rate, dt=problem.dt)
-        except NumericalFailure as exc:
-            runs.append({**OpenLoopMeasurement.failed_dict(speed, str(exc)), "R0_theory": qs.R0,
-                         "Omega_theory": qs.Omega, "xi_theory": qs.xi, "R0_error": None, "Omega_error": None,
-                         "xi_error": None})
-            continue
-        row = measured.to_dict()
-        row.update(R0_theory=qs.R0, Omega_theory=qs.Omega, xi_theory=qs.xi,
-                   R0_error=measured.R0 / qs.R0 - 1.0, Omega_error=measured.Omega / qs.Omega - 1.0,
-                   xi_error=measured.xi - qs.xi)
-        runs.append(row)
-    errors = [abs(r["R0_error"]) for r in runs if r["R0_error"] is not None]
-    return {"problem": problem.name, "runs": runs, "max_R0_error": max(errors) if errors else None,
-            "completed": all(r["settled"] for r in runs)}
+    return problem.mission.run(problem, show_progress)
 
 
 def compare(problem: Problem, seed: int = 0, params: RollbotParams | None = None,

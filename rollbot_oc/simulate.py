@@ -57,7 +57,7 @@ from rollbot_oc.params import ParamView, RollbotParams
 from rollbot_oc.sensors import body_signals, rotate_randomly
 
 __all__ = [
-    "Observation", "Command", "Controller", "Sensor", "Kick", "Event", "SimulationResult",
+    "Observation", "Command", "Controller", "ControllerBase", "Sensor", "Kick", "Event", "SimulationResult",
     "plant_step", "simulate", "motor_axis", "heading",
 ]
 
@@ -249,13 +249,61 @@ class Command:
 
 
 class Controller(Protocol):
-    """Interface every controller implements (PID baseline, NMPC, open-loop schedules)."""
+    """Interface every controller implements (PID baseline, NMPC, open-loop schedules).
+
+    ``ControllerBase`` gives every member but ``__call__`` a neutral default.
+
+    Attributes
+    ----------
+    map : RadiusMap or None
+        The quasi-stable radius map the controller believes in (the centres of
+        curvature of a run are computed with it), or None for the plant's.
+    """
+
+    map: object
 
     def reset(self) -> None:
         """Forget any internal state before a new run."""
 
     def __call__(self, obs: Observation) -> Command:
         """Return the command for the next control period from an observation."""
+
+    def prepare(self, x0) -> None:
+        """Plan offline from the start state ``x0`` (11,), before the run starts (``problems.run_problem``)."""
+
+    @property
+    def done(self) -> bool:
+        """True once the mission is complete: the simulation stops there."""
+
+    def report(self) -> dict:
+        """What the controller has to say about its run (JSON-ready; ``SimulationResult.info``)."""
+
+
+class ControllerBase:
+    """A ``Controller``'s neutral members: nothing to plan, never done, nothing to report, no radius map.
+
+    A controller class derives from it and writes ``__call__`` (and what else it needs).
+    """
+
+    map = None
+
+    def reset(self) -> None:
+        """Nothing to forget."""
+
+    def __call__(self, obs: Observation) -> Command:
+        raise NotImplementedError
+
+    def prepare(self, x0) -> None:
+        """Nothing to plan."""
+
+    @property
+    def done(self) -> bool:
+        """Never done: the run lasts its duration."""
+        return False
+
+    def report(self) -> dict:
+        """Nothing to report."""
+        return {}
 
 
 @dataclass
@@ -678,7 +726,7 @@ def _closed_loop(x0, steps, dt, controller, step, p, w, sensor, stop_on_event, p
             x[:, k + 1], diag[:, k], signals = step(x[:, k], command[k], p, w)
         else:
             x[:, k + 1], diag[:, k] = step(x[:, k], command[k], p, w)
-        if (stop_on_event and (diag[5, k] <= 0 or diag[6, k] < 0)) or getattr(controller, "done", False):
+        if (stop_on_event and (diag[5, k] <= 0 or diag[6, k] < 0)) or controller.done:
             end = k + 1
             break
         if progress is not None and (k + 1) % report_every == 0:
@@ -697,6 +745,5 @@ def _observe(sensor, k: int, dt: float, x, signals, a_prev: float) -> Observatio
     return Observation(est.t, s[POS], s[QUAT], s[OMEGA], float(s[THETA]), float(s[THETA_DOT]), estimate=est)
 
 
-def _controller_info(controller) -> dict:
-    report = getattr(controller, "report", None)
-    return report() if callable(report) else {}
+def _controller_info(controller: Controller) -> dict:
+    return controller.report()

@@ -189,7 +189,7 @@ def comparison_table(runs) -> str:
 
 
 def _stops_total(run) -> int | None:
-    return len(run.problem.mission.stops) if run.problem.kind == "waypoints" else None
+    return len(run.problem.mission.stops) or None
 
 
 def _events(events: list) -> str:
@@ -204,23 +204,7 @@ def run_verdict(run) -> str:
     circle, contact events and exceeded limits, and the NMPC's fallbacks.
     """
     m = run.metrics
-    total = _stops_total(run)
-    if total is not None:
-        errors = m["stop_errors"]
-        worst = f"worst stop error {number(max(errors), '.1f', 'cm', 100)}" if errors else ""
-        head = (f"completed in {number(m['completion_time'], '.1f', 's')}" if m["completed"] else
-                f"NOT completed: {len(errors)} of {total} stops in {number(m['duration'], '.1f', 's')}")
-        parts = [head, worst]
-    elif m["completed"]:
-        parts = [f"on the circle after {number(m['reach_time'], '.1f', 's')}",
-                 f"deviation {number(m['avg_deviation'], '.2f', 'cm', 100)} average, "
-                 f"{number(m['max_deviation'], '.2f', 'cm', 100)} largest"]
-    elif m.get("reach_time") is None:
-        parts = [f"NOT completed: not on the circle within {number(m['duration'], '.1f', 's')}"]
-    else:
-        parts = [f"NOT completed: on the circle after {number(m['reach_time'], '.1f', 's')}, but the run ended at "
-                 f"{number(m['duration'], '.1f', 's')}, before the deviations could be measured (from "
-                 f"{number(m.get('settle_time'), '.0f', 's')} on)"]
+    parts = run.problem.mission.verdict(m)  # each kind says how its run went
     if m["events"]:
         parts.append(_events(m["events"]))
     parts += [f"{what} limit exceeded" for what in ("torque", "speed") if m.get(f"{what}_limit_violation")]

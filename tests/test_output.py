@@ -16,6 +16,7 @@ from types import SimpleNamespace
 import pytest
 
 from rollbot_oc.cli import main
+from rollbot_oc.missions import Waypoints
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.problems import run_problem
 from rollbot_oc.scenarios import load_bundled
@@ -138,7 +139,7 @@ def test_described_follows_the_derived_default_rule():
 def fake_run(controller, completed, time, errors, **extra):
     metrics = {"completed": completed, "completion_time": time, "stop_errors": errors, "duration": 60.0,
                "events": [], "avg_deviation": None, "max_deviation": None, **extra}
-    problem = SimpleNamespace(name="n_shape", kind="waypoints", mission=SimpleNamespace(stops=[(0, 0)] * 4))
+    problem = SimpleNamespace(name="n_shape", kind="waypoints", mission=Waypoints(((0, 0),) * 4))
     return SimpleNamespace(problem=problem, controller=controller, seed=0, metrics=metrics)
 
 

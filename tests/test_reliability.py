@@ -454,7 +454,7 @@ def test_12_bundled_scenarios(capsys):
     status, out, _ = cli_run(["problems", "--json"], capsys)
     rows = strict_json(out)
     assert status == 0 and [r["name"] for r in rows] == names
-    assert {r["kind"] for r in rows} == {"circle", "waypoints", "open_loop"} and all(r["description"] for r in rows)
+    assert {r["kind"] for r in rows} == {"circle", "waypoints", "open_loop", "gates"} and all(r["description"] for r in rows)
     status, out, _ = cli_run(["problems"], capsys)
     assert status == 0 and out.splitlines()[1 + names.index("n_shape")].split()[:2] == ["n_shape", "waypoints"]
 

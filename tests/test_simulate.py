@@ -6,7 +6,7 @@ import pytest
 from rollbot_oc.dynamics import OMEGA, POS, QUAT, THETA_DOT, RollbotModel, rest_state
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.rotations import matrix_to_quat_np, quat_to_matrix_np, rot_x_np, rot_z_np
-from rollbot_oc.simulate import Command, Sensor, SimulationResult, plant_step, simulate
+from rollbot_oc.simulate import Command, ControllerBase, Sensor, SimulationResult, plant_step, simulate
 
 
 def tilted_spinning_state(params):
@@ -114,7 +114,7 @@ def test_slide_and_jump_are_reported_as_events():
     assert kept.t[-1] == pytest.approx(5.0) and kept.events
 
 
-class Ramp:
+class Ramp(ControllerBase):
     def __init__(self):
         self.calls = 0
 
@@ -142,7 +142,7 @@ def test_closed_loop_matches_open_loop_and_noise_is_seeded():
 def test_latency_delays_what_the_controller_sees():
     seen = []
 
-    class Recorder:
+    class Recorder(ControllerBase):
         def reset(self):
             seen.clear()
 

@@ -34,11 +34,11 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from rollbot_oc.control.missions import centre_of_curvature
 from rollbot_oc.control.waypoints import WaypointLayer
+from rollbot_oc.missions import centre_of_curvature
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.quasi_stable import RadiusMap
-from rollbot_oc.simulate import Command, Observation
+from rollbot_oc.simulate import Command, ControllerBase, Observation
 
 __all__ = ["PIDGains", "QuasiStablePID"]
 
@@ -120,13 +120,13 @@ class PIDGains:
 _FROM_MAP = ("min_radius", "max_radius", "stop_radius")
 
 
-class QuasiStablePID:
+class QuasiStablePID(ControllerBase):
     """The paper's baseline controller (see module doc), with its waypoint layer.
 
     Parameters
     ----------
-    mission : Circle or Waypoints
-        What to do.
+    mission : Mission
+        What to do: an orbit or waypoints (``rollbot_oc.missions``).
     params : RollbotParams, optional
         The robot the controller believes in (its quasi-stable map).
     gains : PIDGains, optional

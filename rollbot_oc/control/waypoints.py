@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rollbot_oc.control.missions import Circle, StopMonitor, StopRule, Waypoints
+from rollbot_oc.missions import PassMonitor, StopMonitor
 from rollbot_oc.quasi_stable import RadiusMap
 
 __all__ = ["StopPredictor", "Target", "WaypointLayer"]
@@ -101,7 +101,8 @@ class WaypointLayer:
 
     Parameters
     ----------
-    mission : Circle or Waypoints
+    mission : Mission
+        An orbit (``mission.orbit``) to revolve on, or ``mission.waypoints`` to visit in order.
     radius_map : RadiusMap
     stop_radius : float
         Revolving radius while lining up a stop, m (small: short, predictable braking).
@@ -118,14 +119,15 @@ class WaypointLayer:
 
     def __init__(self, mission, radius_map: RadiusMap, *, stop_radius: float = 0.2, decel: float = 1.0,
                  align_tolerance: float = 0.02):
-        if not isinstance(mission, (Circle, Waypoints)):
-            raise ValueError(f"mission must be a Circle or Waypoints, got {type(mission).__name__}")
+        self.points = mission.waypoints
+        if mission.orbit is None and not self.points:
+            raise ValueError(f"mission {mission.kind!r} gives the waypoint layer neither an orbit nor waypoints")
         if not radius_map.R_min < stop_radius < radius_map.R_max:
             raise ValueError(f"stop_radius = {stop_radius} m is out of range: valid is "
                              f"({radius_map.R_min:.3f}, {radius_map.R_max:.3f}) m")
         self.mission, self.radius_map = mission, radius_map
         self.stop_radius, self.align_tolerance = stop_radius, align_tolerance
-        self.rule = mission.stop_rule if isinstance(mission, Waypoints) else StopRule()
+        self.rule = mission.stop_rule
         self.predictor = StopPredictor(radius_map, decel)
         self.reset()
 
@@ -137,11 +139,12 @@ class WaypointLayer:
         self._last_miss = math.inf
         self._goal = None  # centre target of the current stop, chosen when its leg starts
         self._monitor = None
+        self._pass = None  # watches the pass-through waypoint in progress
         self.retries = 0
 
     @property
     def done(self) -> bool:
-        """True once every waypoint has been visited (never for a circle)."""
+        """True once every waypoint has been visited (never on an orbit)."""
         return self.phase == "done"
 
     def _stop_centre(self, wp_point, centre_now) -> np.ndarray:
@@ -173,12 +176,12 @@ class WaypointLayer:
         driving_speed : float
             Measured driving speed, rad/s (to detect rest).
         """
-        mission = self.mission
-        if isinstance(mission, Circle):
-            return Target(mission.centre, mission.radius)
+        orbit = self.mission.orbit
+        if orbit is not None:
+            return Target(orbit.centre, orbit.radius)
         if self.phase == "done":
             return Target(np.asarray(position, float), self.radius_map.R_min, braking=True)
-        wp = mission.points[self.index]
+        wp = self.points[self.index]
         if not wp.stop:
             return self._pass_target(wp, position)
         if self.phase == "track":
@@ -211,7 +214,9 @@ class WaypointLayer:
         radius = float(self.radius_map.radius(omega0))
         # revolving counter-clockwise, velocity = Omega z x (s - o): s - o points 90 deg clockwise of v
         direction = np.array([wp.velocity[1], -wp.velocity[0]]) / v
-        if np.linalg.norm(np.asarray(position) - wp.point) < self.mission.tolerance:
+        if self._pass is None:
+            self._pass = PassMonitor(wp.point, self.mission.pass_tolerance)
+        if self._pass.update(position):  # passed at its closest approach within the tolerance
             self._advance()
         return Target(wp.point - radius * direction, radius)
 
@@ -219,7 +224,8 @@ class WaypointLayer:
         self.index += 1
         self._last_miss = math.inf
         self._goal = None
-        self.phase = "done" if self.index >= len(self.mission.points) else "track"
+        self._pass = None
+        self.phase = "done" if self.index >= len(self.points) else "track"
 
 
 def _speed_to_omega(radius_map: RadiusMap, speed: float) -> float:

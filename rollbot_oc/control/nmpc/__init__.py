@@ -16,7 +16,11 @@ Structure (do-mpc's separation: model, controller, simulator over one model):
   it is (the tracking NMPC with ``brake_weights``: motion only), then gets a
   new leg from there, as at the start.  For circles, before the run: an entry onto the
   quasi-stable orbit of the target circle in a fixed time (5 s, else 7 or
-  10 s) with the least effort, then the orbit itself.
+  10 s) with the least effort, then the orbit itself.  For gates (``gates``):
+  one minimum-time plan through every gate on ``rollbot_oc.ocp``, followed
+  once its modelled compute time has passed, the position weighted more at
+  each planned gate passage; after the last gate the motor's speed is
+  ramped to zero; a missed gate is planned again from rest.
 * **Tracking NMPC**: every ``h = 0.1`` s it solves a multiple-shooting
   problem over ``N = 30`` intervals (3 s, about half a revolution period and
   half the 7 s recovery time) that keeps the predicted reduced state near the
@@ -52,7 +56,9 @@ measures both and the default is chosen from it.
 The package follows those concepts, one module each: ``settings`` (weights,
 horizon, limits, fallbacks), ``tracking`` (the tracking problem and its
 solvers), ``estimation`` (the floor-tilt filter), ``reference`` (what is
-tracked: legs, holds, orbits) and ``loop`` (the controller and its fallbacks).
+tracked: legs, holds, orbits), ``gates`` (the plan through gates) and ``loop`` (the controller and its
+fallbacks).  What the mission asks (stops, an orbit, gates) the loop learns from the mission's own answers
+(``rollbot_oc.missions``).
 """
 
 from rollbot_oc.control.nmpc.estimation import TiltEstimator

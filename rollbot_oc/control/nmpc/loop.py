@@ -9,25 +9,29 @@ from dataclasses import replace
 
 import numpy as np
 
-from rollbot_oc.control.missions import Circle, StopMonitor, Waypoints
 from rollbot_oc.control.nmpc.estimation import TiltEstimator
+from rollbot_oc.control.nmpc.gates import plan_gates
 from rollbot_oc.control.nmpc.reference import Reference
 from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.tracking import RTISolver, TrackingSolver
 from rollbot_oc.control.ocp import OCPSettings, OrbitEntry, Plan, RestToRest, SolveFailed, quasi_stable_guess
 from rollbot_oc.dynamics import REDUCED, to_reduced
+from rollbot_oc.missions import PassMonitor, StopMonitor
 from rollbot_oc.params import RollbotParams
-from rollbot_oc.simulate import Command, Observation
+from rollbot_oc.simulate import Command, ControllerBase, Observation
 
-__all__ = ["NMPC"]
+__all__ = ["NMPC", "GATE_REPLANS"]
+
+GATE_REPLANS = 3  # plans through the gates left after the first, when the robot missed one
 
 
-class NMPC:
+class NMPC(ControllerBase):
     """Tracking NMPC with minimum-time plans (see module doc); a ``Controller`` for ``simulate``.
 
     Parameters
     ----------
-    mission : Circle or Waypoints
+    mission : Mission
+        Stops (``mission.stops``), an orbit (``mission.orbit``) or gates (``mission.gates``).
     params : RollbotParams, optional
         The robot the controller believes in (level floor by default: the slope is estimated).
     dt : float
@@ -37,28 +41,29 @@ class NMPC:
 
     def __init__(self, mission, params: RollbotParams | None = None, dt: float = 0.01,
                  settings: NMPCSettings | None = None):
-        if not isinstance(mission, (Circle, Waypoints)):
-            raise ValueError(f"mission must be a Circle or Waypoints, got {type(mission).__name__}")
-        if any(not w.stop for w in getattr(mission, "points", ())):
+        if mission.orbit is None and not mission.stops and not mission.gates:
+            raise ValueError(f"mission {mission.kind!r}: the NMPC needs stops, an orbit or gates")
+        if not mission.gates and any(not w.stop for w in mission.waypoints):
             raise ValueError("the NMPC plans stops; pass-through waypoints are for the PID's waypoint layer")
         self.mission = mission
-        self._rule = mission.stop_rule if isinstance(mission, Waypoints) else None
+        self._rule = mission.stop_rule
         self.params = params or RollbotParams()
         self.dt = dt
         self.settings = s = settings or NMPCSettings()
         self.every = max(1, int(round(s.h / dt)))
         if abs(self.every * dt - s.h) > 1e-9:
             raise ValueError(f"NMPC h = {s.h} s must be a whole number of control periods dt = {dt} s")
-        self.weights = s.circle_weights if isinstance(mission, Circle) else s.waypoint_weights
+        self.weights = s.circle_weights if mission.orbit is not None else s.waypoint_weights
         solver = TrackingSolver if s.solver == "ipopt" else RTISolver
         self.solver = solver(self.params, s, self.weights)
         self._hold_diag = s.hold_weights.diagonal(s.N)
+        self._track_diag = self.weights.diagonal(s.N)
         self._brake_diag = s.brake_weights.diagonal(s.N)
         self.estimator = TiltEstimator(self.params, dt, s.tilt_process_noise, s.gyro_sigma,
                                        s.tilt_model_error)
         # the legs' planner, built once (its floor tilt is set per plan from the estimate)
         self._legs = _rest_to_rest(self.params.replace(slope=0.0), s.plan, tuple(s.constraints)) \
-            if isinstance(mission, Waypoints) else None
+            if mission.stops else None
         self.map = None  # set with the plans (for centre-of-curvature plots)
         self.reference = None
         self.plan_time = 0.0
@@ -71,7 +76,8 @@ class NMPC:
 
         Stops: the quasi-stable guess of the first leg (a fraction of a second),
         refined while the robot moves (see ``plan_handover``); every later leg
-        is planned during the one before.  Circles: the entry onto the orbit.
+        is planned during the one before.  Circles: the entry onto the orbit.  Gates: the
+        minimum-time plan through them (``nmpc.gates``), followed once its modelled compute time has passed.
         ``plan_time`` is the computation before the first command, s.
 
         Raises
@@ -84,28 +90,106 @@ class NMPC:
         from rollbot_oc.quasi_stable import RadiusMap
 
         self.map = RadiusMap(level)
-        if isinstance(self.mission, Waypoints):
+        if self.mission.stops:
             self.reference = Reference([None] * len(self.mission.stops))
             self._follow_guess(to_reduced(x0), 0.0)  # refined while the robot moves (``_refine``)
             self.plan_time = time.perf_counter() - start  # the first command can be given now
             return self.reference
+        if self.mission.gates:  # one minimum-time plan through every gate (``nmpc.gates``)
+            self._follow_gates(to_reduced(x0), 0.0)
+            self.plan_time = time.perf_counter() - start
+            return self.reference
         # The minimum-time entry takes hundreds of IPOPT iterations; a fixed entry time a little
         # above it, with the least effort, converges in a fraction of the time.
-        settings = self.settings.entry
+        settings, orbit = self.settings.entry, self.mission.orbit
         for duration in self.settings.entry_times:
             intervals = int(round(duration / self.settings.h))
-            entry = _orbit_entry(self.mission.radius, level, replace(settings, N=intervals), tuple(self.settings.constraints))
+            entry = _orbit_entry(orbit.radius, level, replace(settings, N=intervals), tuple(self.settings.constraints))
             try:
-                plan = entry.solve(x0, self.mission.centre, duration=duration)
+                plan = entry.solve(x0, orbit.centre, duration=duration)
                 break
             except SolveFailed:
                 if duration == self.settings.entry_times[-1]:
                     raise
-        orbit = {"qs": entry.qs_reduced, "centre": self.mission.centre, "phase": plan.extra["phase"],
-                 "Omega": entry.quasi.Omega}
-        self.reference = Reference([(plan, {})], orbit)
+        self.reference = Reference([(plan, {})], {"qs": entry.qs_reduced, "centre": orbit.centre,
+                                                  "phase": plan.extra["phase"], "Omega": entry.quasi.Omega})
         self.plan_time = time.perf_counter() - start
         return self.reference
+
+    # -- gates: one plan through those left, then brought to rest ----------------------------------
+    def _follow_gates(self, z, t_now: float) -> float:
+        """Plan from ``z`` through the gates not yet passed (on the estimated floor) and follow the plan
+        from the solve instant its modelled compute time has passed; returns that instant, s."""
+        s, gates = self.settings, self.mission.gates[self._gates_passed:]
+        plan = plan_gates(z, gates, self.params.replace(slope=0.0), s.gates, tilt=self.estimator.tilt.copy(),
+                          constraints=tuple(s.constraints))
+        self._gate_plans.append(plan.to_dict())
+        self.log["plan_solve_times"].append(plan.solve_time)
+        compute = plan.solve_time if s.realtime else plan.iterations * s.plan_iteration_time
+        start = t_now + s.h * math.ceil(compute / s.h - 1e-9)
+        self.reference = Reference([(plan, {"gates": gates})])
+        self.segment, self.segment_start = 0, start
+        self.warm, self.current = None, None
+        return start
+
+    def _gate_diag(self, local: float) -> np.ndarray:
+        """Tracking weights with ``gate_weight`` added on the position at the two horizon nodes around
+        each planned gate passage (``local``: time on the plan, s)."""
+        s = self.settings
+        diag = self._track_diag.copy()
+        for t_gate in self.reference.segments[0][0].extra["gate_times"]:
+            j = int(math.floor((t_gate - local) / s.h))
+            for node in (j, j + 1):
+                if 0 <= node <= s.N:
+                    diag[node * 10:node * 10 + 2] += s.gate_weight
+        return diag
+
+    def _watch_gates(self, obs: Observation):
+        """Feed the next gate's ``PassMonitor`` with the measured position; count it once passed."""
+        gates = self.mission.gates
+        if self._gates_passed >= len(gates):
+            return
+        if self._gate is None:
+            self._gate = PassMonitor(gates[self._gates_passed], self.mission.pass_tolerance)
+        if self._gate.update(obs.position):
+            self._gates_passed += 1
+            self._gate = None
+
+    def _advance_gates(self, t_now: float, z):
+        """After the last gate, or a plan's end (``hold_time`` past it) with a gate missed, stop the motor:
+        its speed ramped to zero at ``brake_accel`` and held there (``_stop_motor``).  With every gate
+        passed, done once the robot is at rest (or ``brake_wait`` s later); with gates left, from rest
+        (or ``brake_wait`` s later) a new plan through them, followed once its modelled compute time has
+        passed (at most ``GATE_REPLANS`` of them)."""
+        s = self.settings
+        left = self._gates_passed < len(self.mission.gates)
+        if self._braking_since is None:
+            if not left or t_now - self.segment_start >= self.reference.segments[0][0].T + s.hold_time - 1e-9:
+                self._stop_motor(t_now, z)
+            return
+        at_rest = (self.params.R * float(np.linalg.norm(z[REDUCED.omega])) < s.recover_speed
+                   and abs(float(z[REDUCED.theta_dot])) < s.recover_drive)
+        settled = at_rest or t_now - self._braking_since >= s.brake_wait - 1e-9
+        if not left or self.log["replans"] >= GATE_REPLANS:
+            self._done = settled
+        elif settled:
+            self.log["replans"] += 1
+            try:
+                self.pid_until = self._follow_gates(z, t_now)  # the motor held still until the plan is ready
+                self._braking_since = None
+            except SolveFailed as exc:  # reported; the robot stays at rest, and tries again
+                self.log["statuses"].append(f"plan failed: {exc.status}")
+                self.log["plan_failures"] += 1
+                self._braking_since = t_now
+
+    def _stop_motor(self, t_now: float, z):
+        """Ramp the motor's speed to zero (``brake_accel``) and hold it there: a robot passing gates
+        comes to rest this way (the braking weights, from the speed a minimum-time plan ends at, chatter
+        between the motor's limits)."""
+        s = self.settings
+        self._ramp, self.pid_until = (t_now, float(z[REDUCED.theta_dot])), t_now + s.brake_wait + s.h
+        self._braking_since, self._rest_plan = t_now, None
+        self.warm, self.current = None, None
 
     # -- legs: planned while the robot moves --------------------------------------------------------
     def _provisional(self, z, t_now: float):
@@ -212,6 +296,7 @@ class NMPC:
             self._refine_at = None  # when to refine the quasi-stable guess followed
             self._braking_since = None  # when the robot began to be brought to rest
             self._anchor = None
+            self._gate_plans = []  # every plan through the gates, for the report
             self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0,
                         "fallback_brake": 0, "late": 0, "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [],
                         "plan_failures": 0, "plan_wait": 0.0, "brakes": 0, "plan_late": 0, "stones": 0, "unfit": 0}
@@ -229,6 +314,8 @@ class NMPC:
         self._pid_goal = None
         self._done = False
         self._finished_at = None
+        self._gates_passed = 0
+        self._gate = None  # watches the next gate
         self.estimator.reset()
 
     @property
@@ -247,6 +334,7 @@ class NMPC:
         self._estimate(seen, z_meas)
         z = self._predict_to_now(z_meas, seen, k)
         reached = self._watch_stop(obs)
+        self._watch_gates(obs)
         if k % self.every == 0:  # stops are left at the solve instants, so legs start on the grid
             self._advance_mission(t_now, obs, reached, z)
         if self._done:
@@ -283,7 +371,7 @@ class NMPC:
 
     def _watch_stop(self, obs: Observation) -> bool:
         """Feed the current stop's monitor (``StopRule``: near it and at rest for 0.5 s); True once reached."""
-        if self.reference is None or isinstance(self.mission, Circle) or self._done:
+        if self.reference is None or not self.mission.stops or self._done:
             return False
         if self._monitor is None:
             self._monitor = StopMonitor(self.reference.segments[self.segment][1]["stop"], self._rule)
@@ -294,7 +382,9 @@ class NMPC:
         """Follow refined legs as they become ready, plan the next leg ahead, leave a stop once it is
         reached, and, if the robot was pushed off its plan or came to rest outside its stop's tolerance,
         bring it to rest and plan a new leg to the same stop from there (``_brake``)."""
-        if self.reference is None or isinstance(self.mission, Circle):
+        if self.reference is not None and self.mission.gates:
+            self._advance_gates(t_now, z)
+        if self.reference is None or not self.mission.stops:
             return
         s, i = self.settings, self.segment
         if self._finished_at is not None:  # the last stop is reached: hold there a little longer
@@ -402,13 +492,15 @@ class NMPC:
             self._settle(Zr, t_now, z)
             if self._anchor is not None:  # holding at a stop
                 diag = self._hold_diag
+            elif self.mission.gates:
+                diag = self._gate_diag(t_now - self.segment_start)
         # q and -q are the same attitude: give the (continuous) reference the measurement's sign
         if float(Zr[2:6, 0] @ z[2:6]) < 0:
             Zr[2:6] *= -1.0
-        circle = None
-        if isinstance(self.mission, Circle):  # the distance from the circle counts once on the orbit
+        circle, orbit = None, self.mission.orbit
+        if orbit is not None:  # the distance from the circle counts once on the orbit
             on_orbit = (t_now - self.segment_start + s.h * np.arange(s.N + 1)) > self.reference.segments[0][0].T
-            circle = (self.mission.centre, self.mission.radius, self.weights.radial * on_orbit)
+            circle = (orbit.centre, orbit.radius, self.weights.radial * on_orbit)
         x, lam, status, ok, seconds = self.solver.solve(z, Zr, Ur, self.estimator.params(), self.warm, circle, diag)
         compute = seconds if s.realtime else self.solver.modelled_time()
         late = compute > (s.h if s.max_solve_time is None else s.max_solve_time)
@@ -427,7 +519,7 @@ class NMPC:
             self.log["fallback_shifted"] += 1  # keep following the previous solution (its index moves on)
             return
         self.warm, self.current, self.failures = None, None, 0
-        if isinstance(self.mission, Waypoints) and s.fallback == "brake":
+        if self.mission.stops and s.fallback == "brake":
             # the motor's speed ramped to zero for a moment, then the NMPC brings the robot to rest and
             # plans a new leg from there (``_advance_mission``)
             self.log["fallback_brake"] += 1
@@ -446,7 +538,7 @@ class NMPC:
         """Past a leg's end within ``hold_radius`` of its stop, hold the robot where it is: the reference
         position becomes the position it had on arriving, so the NMPC damps the motion instead of chasing
         a few centimetres a single motor cannot correct at rest."""
-        if self.reference is None or isinstance(self.mission, Circle):
+        if self.reference is None or not self.mission.stops:
             return
         plan, info = self.reference.segments[self.segment]
         ended = t_now - self.segment_start + self.settings.h * np.arange(Zr.shape[1]) >= plan.T
@@ -478,14 +570,12 @@ class NMPC:
         The plant's speed loop turns the speed into an acceleration with the current driving speed; the
         NMPC's own record of the command (for its delay compensation) uses the predicted driving speed.
         """
-        goal = self.segment if isinstance(self.mission, Waypoints) else -1
+        goal = self._target_index()
         if self._pid is None or self._pid_goal != goal:
             from rollbot_oc.control.pid import QuasiStablePID
 
-            mission = self.mission if goal < 0 else Waypoints(
-                (self.reference.segments[self.segment][1]["stop"],), stop_tolerance=self.mission.stop_tolerance)
             self._pid, self._pid_goal, self._pid_fresh = QuasiStablePID(
-                mission, self.params, dt=self.dt, radius_map=self.map), goal, True
+                self.mission.leg(goal), self.params, dt=self.dt, radius_map=self.map), goal, True
         if self._pid_fresh:  # take over smoothly from the current driving speed
             self._pid.reset()
             self._pid.omega_cmd = max(float(z[REDUCED.theta_dot]), 0.0)
@@ -496,6 +586,10 @@ class NMPC:
         self.commands.pop(k - 50, None)
         return Command(speed=speed)
 
+    def _target_index(self) -> int:
+        """The mission's target in progress: the stop's segment, the next gate, 0 on an orbit."""
+        return self.segment if self.mission.stops else self._gates_passed
+
     def report(self) -> dict:
         """Solve-time statistics (s), solver statuses, fallback counts, stops and plans."""
         times = np.array(self.log["solve_times"]) if self.log["solve_times"] else np.zeros(1)
@@ -503,7 +597,7 @@ class NMPC:
         for st in self.log["statuses"]:
             statuses[st] = statuses.get(st, 0) + 1
         legs = [seg for seg in self.reference.segments if seg is not None] if self.reference else []
-        plans = [seg[0].to_dict() for seg in legs]
+        plans = [seg[0].to_dict() for seg in legs] if not self.mission.gates else list(self._gate_plans)
         plan_times = np.array(self.log["plan_solve_times"]) if self.log["plan_solve_times"] else np.zeros(1)
         return {
             "stops": list(self.stops),

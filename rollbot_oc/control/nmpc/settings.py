@@ -161,6 +161,9 @@ class NMPCSettings:
     finish_hold : float
         After the last stop is reached, the NMPC holds the robot there this
         long before it reports ``done`` (the run then ends), s.
+    gate_weight : float
+        Gates: the weight added on the position deviation from the plan at the
+        two horizon nodes around each planned gate passage, 1/m^2.
     hold_radius : float
         At the end of a leg within this distance of its stop (m), the NMPC holds
         the robot where it arrived (damping its motion) instead of chasing the
@@ -224,6 +227,11 @@ class NMPCSettings:
         for the plans it gets from rest).
     entry : OCPSettings
         Settings of a circle's entry onto its orbit (its ``N`` follows the entry time).
+    gates : OCPSettings
+        Settings of the plan through gates (``nmpc.gates``; its ``N`` is unused:
+        each gate has ``GATE_INTERVALS``): the exact Hessian, and 40 % of the
+        motor's speed left to the feedback (at 85 % the fast plan is tracked
+        too loosely to pass every gate within 5 cm).
     """
 
     N: int = 30
@@ -250,6 +258,7 @@ class NMPCSettings:
     replan_distance: float = 0.15
     replan_angle: float = 0.2
     finish_hold: float = 1.0
+    gate_weight: float = 2e4
     replan_interval: float = 1.0
     brake_weights: "TrackingWeights" = None
     brake_accel: float = 15.0
@@ -273,6 +282,8 @@ class NMPCSettings:
     compiled: bool | None = None
     plan: OCPSettings = field(default_factory=lambda: OCPSettings(N=40, accel_margin=0.85, compiled=True, max_iter=150))
     entry: OCPSettings = field(default_factory=lambda: OCPSettings(compiled=True))
+    gates: OCPSettings = field(default_factory=lambda: OCPSettings(accel_margin=0.85, speed_margin=0.6,
+                                                                   hessian="exact"))
 
     def __post_init__(self):
         if self.waypoint_weights is None:

@@ -1,9 +1,8 @@
 """Optional speed-up: CasADi Functions generated as C, compiled once, and loaded back.
 
 CasADi evaluates SX Functions in its virtual machine; the same Function
-generated as C and compiled runs about ten times faster (the NMPC's interval
-linearisation: 0.55 ms against 4.9 ms for 30 intervals).  Compiling takes a
-few seconds, so the shared library is cached on disk under a name derived
+generated as C and compiled runs several times faster (``benchmarks/`` and
+the README give the figures).  Compiling takes seconds to a minute, so the shared library is cached on disk under a name derived
 from the generated code (so a changed model compiles anew), in
 ``$ROLLBOT_OC_CACHE`` or ``~/.cache/rollbot_oc``.
 

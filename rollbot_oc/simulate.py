@@ -135,7 +135,7 @@ def plant_step(dt: float = 0.01, substeps: int = 4, method: str = "rk4", samples
     else:
         xk = integrate(x, a, p, w)
     q = xk[QUAT]
-    xk = ca.vertcat(xk[0:2], q / ca.norm_2(q), xk[6:])
+    xk = ca.vertcat(xk[POS], q / ca.norm_2(q), xk[OMEGA.start:])
     bounds = sym.accel_bounds(x, p, w)
     a_applied = ca.fmin(ca.fmax(a, bounds[0]), bounds[1])
     diag = ca.vertcat(a_applied, sym.motor_torque(x, a_applied, p, w), sym.reaction(x, a_applied, p, w),

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.dynamics import NW, symbolic_model
+from rollbot_oc.dynamics import FULL, NW, symbolic_model
 from rollbot_oc.errors import NumericalFailure
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
 from rollbot_oc.fastcall import fast_map
@@ -68,17 +68,17 @@ def _linear_functions() -> tuple[ca.Function, ca.Function]:
     alpha, d_omega, d_speed, accel = ca.SX.sym("alpha", 3), ca.SX.sym("d_omega", 3), ca.SX.sym("dv"), ca.SX.sym("a")
     x_star = q.state(z, omega0, p)
     Omega = z[0] * omega0
-    omega_star = x_star[6:9]
+    omega_star = x_star[FULL.omega]
     # Cayley map as a unit quaternion: (1, alpha/2) normalised.
     q_alpha = ca.vertcat(1, alpha / 2) / ca.sqrt(1 + ca.sumsqr(alpha) / 4)
-    quat = quat_multiply(q_alpha, x_star[2:6])
+    quat = quat_multiply(q_alpha, x_star[FULL.quaternion])
     omega = omega_star + d_omega
     speed = omega0 + d_speed
-    x = ca.vertcat(x_star[0:2], quat, omega, x_star[9], speed)
+    x = ca.vertcat(x_star[FULL.position], quat, omega, x_star[FULL.theta], speed)
     xdot = sym.f(x, accel, p, ca.DM.zeros(NW))
     motor_axis = ca.mtimes(quat_to_matrix(quat), _EZ)
     y = ca.vertcat(alpha, d_omega, d_speed)
-    ydot = ca.vertcat(omega + speed * motor_axis - Omega * _EZ, xdot[6:9] - ca.cross(Omega * _EZ, omega), accel)
+    ydot = ca.vertcat(omega + speed * motor_axis - Omega * _EZ, xdot[FULL.omega] - ca.cross(Omega * _EZ, omega), accel)
     perturbation = ca.vertcat(y, accel)
     A7 = ca.substitute(ca.jacobian(ydot, y), perturbation, ca.DM.zeros(8))
     B7 = ca.substitute(ca.jacobian(ydot, accel), perturbation, ca.DM.zeros(8))
@@ -252,7 +252,7 @@ def perturbed_state(state: QuasiStableState, y) -> np.ndarray:
     if y.shape != (6,):
         raise ValueError(f"perturbed_state: y has {y.size} entries, expected 6 ({', '.join(STATE_LABELS)})")
     x = np.array(_linear_functions()[1](state.unknowns, state.omega0, level(state.params).vector(), y)).ravel()
-    x[2:6] /= np.linalg.norm(x[2:6])
+    x[FULL.quaternion] /= np.linalg.norm(x[FULL.quaternion])
     return x
 
 

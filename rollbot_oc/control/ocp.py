@@ -44,7 +44,7 @@ import numpy as np
 
 from rollbot_oc.codegen import compiler
 from rollbot_oc.errors import NotConverged
-from rollbot_oc.dynamics import NW, NZ, from_reduced, reduced_model, rk4, to_reduced
+from rollbot_oc.dynamics import NW, NZ, REDUCED, from_reduced, reduced_model, rk4, to_reduced
 from rollbot_oc.params import NP, PARAM_INDEX, TILT, RollbotParams
 from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_state
 from rollbot_oc.rotations import quat_multiply
@@ -137,9 +137,10 @@ def orbit_state(qs_reduced, centre, phase):
     """
     c, s = ca.cos(phase), ca.sin(phase)
     rot = ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
-    pos = ca.mtimes(rot[0:2, 0:2], qs_reduced[0:2]) + centre
-    quat = quat_multiply(ca.vertcat(ca.cos(phase / 2), 0, 0, ca.sin(phase / 2)), qs_reduced[2:6])
-    return ca.vertcat(pos, quat, ca.mtimes(rot, qs_reduced[6:9]), qs_reduced[9])
+    R = REDUCED
+    pos = ca.mtimes(rot[0:2, 0:2], qs_reduced[R.position]) + centre
+    quat = quat_multiply(ca.vertcat(ca.cos(phase / 2), 0, 0, ca.sin(phase / 2)), qs_reduced[R.quaternion])
+    return ca.vertcat(pos, quat, ca.mtimes(rot, qs_reduced[R.omega]), qs_reduced[R.theta_dot])
 
 
 @dataclass
@@ -187,8 +188,8 @@ class Plan:
         """Planned reduced state at time(s) ``t`` (s), linear between nodes (quaternions renormalised)."""
         t = np.clip(np.asarray(t, float), 0.0, self.T)
         out = np.array([np.interp(t, self.t, row) for row in self.z])
-        q = out[2:6]
-        out[2:6] = q / np.linalg.norm(q, axis=0)
+        q = out[REDUCED.quaternion]
+        out[REDUCED.quaternion] = q / np.linalg.norm(q, axis=0)
         return out
 
     def resample(self, N: int) -> "Plan":
@@ -207,7 +208,7 @@ class Plan:
     @property
     def driving_speed(self) -> np.ndarray:
         """Planned driving speed at the nodes, rad/s."""
-        return self.z[9]
+        return self.z[REDUCED.theta_dot]
 
     def to_dict(self) -> dict:
         """Summary for JSON."""
@@ -398,8 +399,9 @@ class OrbitEntry(_MinTimeOCP):
         x = ocp.state
         # attitude: the vector part of the relative rotation vanishes (3 independent conditions; equating
         # all four quaternion components would be redundant and spoil the constraint Jacobian's rank)
-        relative = quat_multiply(ca.vertcat(target[2], -target[3:6]), x.quaternion)[1:4]
-        ocp.subject_to(x.position == target[0:2], relative == 0, x.velocity == target[6:10], at="end",
+        q = target[REDUCED.quaternion]
+        relative = quat_multiply(ca.vertcat(q[0], -q[1:4]), x.quaternion)[1:4]
+        ocp.subject_to(x.position == target[REDUCED.position], relative == 0, x.velocity == target[REDUCED.velocity], at="end",
                        name="on the orbit")
 
     def solve(self, start, centre, guess: Plan | None = None, duration: float | None = None) -> Plan:
@@ -550,6 +552,6 @@ def plan_waypoints(start, stops, params: RollbotParams | None = None, settings: 
         plan = ocp.fastest(z, stop, starts)
         plans.append(plan)
         z = plan.z[:, -1].copy()
-        z[6:10] = 0.0  # the leg ends at rest
+        z[REDUCED.velocity] = 0.0  # the leg ends at rest
     return plans
 

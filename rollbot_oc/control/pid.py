@@ -133,7 +133,7 @@ class QuasiStablePID(ControllerBase):
     dt : float
         Control period, s.
     radius_map : RadiusMap, optional
-        Reuse an existing map (building one takes about 50 ms).
+        Reuse an existing map (building one costs a curve of quasi-stable states).
     """
 
     def __init__(self, mission, params: RollbotParams | None = None, gains: PIDGains | None = None,

@@ -48,10 +48,13 @@ Measured (what a real Rollbot would know): the pose from motion capture
 (position, orientation), the shell angular velocity from a gyroscope and the
 motor angle and speed from the encoder; that is the whole state.
 
-Solvers: ``"ipopt"`` (exact Hessian, warm-started; always works) and
-``"rti"``, a real-time iteration (one Gauss-Newton SQP step per sample with a
-QP solved by CasADi's ``qrqp``), much faster; ``benchmarks/bench_nmpc.py``
-measures both and the default is chosen from it.
+Solvers: the tracking problem is written once on the optimal-control layer
+(``tracking.tracking_problem``) and solved by its routes: ``"ipopt"`` (exact
+Hessian, warm-started; converges every period) or ``"rti"``, a real-time
+iteration (one Gauss-Newton SQP step per sample, its Hessian and gradients
+from the AD Jacobians of the least-squares residuals, QPs by HPIPM with qrqp
+behind it), much faster; ``benchmarks/bench_nmpc.py`` measures both and the
+default is chosen from it.
 
 The package follows those concepts, one module each: ``settings`` (weights,
 horizon, limits, fallbacks), ``tracking`` (the tracking problem and its

@@ -9,7 +9,7 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.control.ocp import NP, interval_function
-from rollbot_oc.dynamics import NZ
+from rollbot_oc.dynamics import NZ, REDUCED
 from rollbot_oc.fastcall import FastFunction
 from rollbot_oc.params import TILT, RollbotParams
 
@@ -22,7 +22,7 @@ def _one_step(substeps: int, dt: float) -> ca.Function:
     F = interval_function(substeps)
     z, u, p = ca.SX.sym("z", NZ), ca.SX.sym("u"), ca.SX.sym("p", NP)
     zn = F(z, u, dt, p)
-    return ca.Function("one_step", [z, u, p], [zn, ca.jacobian(zn[6:9], p)[:, TILT]])
+    return ca.Function("one_step", [z, u, p], [zn, ca.jacobian(zn[REDUCED.omega], p)[:, TILT]])
 
 
 class TiltEstimator:
@@ -66,11 +66,11 @@ class TiltEstimator:
         p[TILT] = self.tilt
         zn, H = self.step(z_prev, u_prev, p)
         H = H.reshape(2, 3).T  # the buffer is column-major
-        residual = np.asarray(z_now)[6:9] - zn[6:9]
+        residual = np.asarray(z_now)[REDUCED.omega] - zn[REDUCED.omega]
         if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(H))):
             return self.tilt  # nothing to learn from a broken prediction
         self.P = self.P + np.eye(2) * self.q
-        change = float(np.linalg.norm(zn[6:9] - np.asarray(z_prev)[6:9]))
+        change = float(np.linalg.norm(zn[REDUCED.omega] - np.asarray(z_prev)[REDUCED.omega]))
         S = H @ self.P @ H.T + np.eye(3) * (self.r + (self.model_error * change) ** 2)
         K = np.linalg.solve(S, H @ self.P).T  # S is symmetric positive definite (r > 0)
         self.tilt = np.clip(self.tilt + K @ residual, -0.5, 0.5)

@@ -488,15 +488,15 @@ class NMPC(ControllerBase):
             Ur, diag = np.zeros(s.N), self._hold_diag if held else self._brake_diag
             Zr[REDUCED.velocity] = 0.0
         else:
-            Zr, Ur = self.reference.sample(self.segment, t_now - self.segment_start, s.h, s.N, position=z[0:2])
+            Zr, Ur = self.reference.sample(self.segment, t_now - self.segment_start, s.h, s.N, position=z[REDUCED.position])
             self._settle(Zr, t_now, z)
             if self._anchor is not None:  # holding at a stop
                 diag = self._hold_diag
             elif self.mission.gates:
                 diag = self._gate_diag(t_now - self.segment_start)
         # q and -q are the same attitude: give the (continuous) reference the measurement's sign
-        if float(Zr[2:6, 0] @ z[2:6]) < 0:
-            Zr[2:6] *= -1.0
+        if float(Zr[REDUCED.quaternion, 0] @ z[REDUCED.quaternion]) < 0:
+            Zr[REDUCED.quaternion] *= -1.0
         circle, orbit = None, self.mission.orbit
         if orbit is not None:  # the distance from the circle counts once on the orbit
             on_orbit = (t_now - self.segment_start + s.h * np.arange(s.N + 1)) > self.reference.segments[0][0].T

@@ -87,10 +87,10 @@ class NMPCSettings:
     substeps : int
         RK4 steps per interval in the prediction.
     solver : {"rti", "ipopt"}
-        ``"rti"`` (default, chosen by measurement: 2.6 to 4 ms per solve,
-        p95 under 5 ms) or ``"ipopt"`` (converged every period; 0.1 to 0.5 s
-        per solve on a 2-core machine, so too slow for 10 Hz replanning there:
-        its late solves fall back).
+        ``"rti"`` (default, chosen by measurement: ``benchmarks/bench_nmpc.py``)
+        or ``"ipopt"`` (converged every period; too slow for 10 Hz replanning
+        on a small machine: its late solves fall back).  Both are routes of
+        the one tracking problem (``tracking.tracking_problem``).
     waypoint_weights, hold_weights, circle_weights : TrackingWeights
         Tracking weights on the way to a stop, holding at it once its leg has
         ended, and on circles (defaults in ``TrackingWeights.for_waypoints``,

@@ -120,7 +120,9 @@ def test_compiled_and_interpreted_linearisations_agree():
     from rollbot_oc.ocp.linearisation import StructuredLinearisation
     from rollbot_oc.ocp.transcription import Transcription
 
-    tr = Transcription(tracking_problem(N=6, h=0.1))
+    from rollbot_oc.missions import Circle
+
+    tr = Transcription(tracking_problem(N=6, h=0.1, mission=Circle))  # with the circle's own term
     rng = np.random.default_rng(1)
     w = rng.normal(size=tr.layout.size)
     stage = {name: rng.normal(size=(sl.stop - sl.start, 7)) for name, sl in tr.layout.stage_parameters.items()}

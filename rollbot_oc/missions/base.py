@@ -107,6 +107,23 @@ class Mission:
                 f"NOT completed in {number(metrics['duration'], '.1f', 's')}"]
 
     # -- what the controllers ask ---------------------------------------------------------------
+    @classmethod
+    def tracking_terms(cls, ocp) -> list:
+        """Least-squares residuals this kind adds to the NMPC's tracking problem (``control.nmpc.tracking``),
+        as stage expressions of ``ocp``; none here.
+
+        A class method: they are written once per kind (the problem is built once
+        and reused for every mission of the kind), and a mission's own numbers
+        enter as parameters declared here (``ocp.parameter``) whose values
+        ``tracking_values`` gives.
+        The tracking problem weights each residual per node.
+        """
+        return []
+
+    def tracking_values(self) -> dict:
+        """Values of the parameters ``tracking_terms`` declares, by name."""
+        return {}
+
     @property
     def stops(self) -> list:
         """The points to stop at, in order, m (none by default)."""

@@ -15,6 +15,7 @@ import functools
 import math
 from dataclasses import dataclass
 
+import casadi as ca
 import numpy as np
 
 from rollbot_oc.errors import ConfigError
@@ -92,6 +93,15 @@ class Circle(Mission):
     def orbit(self) -> "Circle":
         """The circle itself."""
         return self
+
+    @classmethod
+    def tracking_terms(cls, ocp) -> list:
+        """The distance from the circle (m): on the orbit only that is the mission, not the point on it."""
+        circle = ocp.parameter("circle", 3)  # centre x, y and radius, m
+        return [ca.sqrt(ca.sumsqr(ocp.state.position - circle[0:2]) + 1e-9) - circle[2]]
+
+    def tracking_values(self) -> dict:
+        return {"circle": np.concatenate([self.centre, [self.radius]])}
 
     def verdict(self, metrics: dict) -> list[str]:
         """On the circle and when, the deviations; or why not completed."""

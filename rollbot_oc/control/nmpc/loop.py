@@ -55,7 +55,7 @@ class NMPC(ControllerBase):
             raise ValueError(f"NMPC h = {s.h} s must be a whole number of control periods dt = {dt} s")
         self.weights = s.circle_weights if mission.orbit is not None else s.waypoint_weights
         solver = TrackingSolver if s.solver == "ipopt" else RTISolver
-        self.solver = solver(self.params, s, self.weights)
+        self.solver = solver(self.params, s, self.weights, mission=mission)
         self._hold_diag = s.hold_weights.diagonal(s.N)
         self._track_diag = self.weights.diagonal(s.N)
         self._brake_diag = s.brake_weights.diagonal(s.N)
@@ -497,11 +497,12 @@ class NMPC(ControllerBase):
         # q and -q are the same attitude: give the (continuous) reference the measurement's sign
         if float(Zr[REDUCED.quaternion, 0] @ z[REDUCED.quaternion]) < 0:
             Zr[REDUCED.quaternion] *= -1.0
-        circle, orbit = None, self.mission.orbit
-        if orbit is not None:  # the distance from the circle counts once on the orbit
+        mission_weights = None
+        if self.mission.orbit is not None:  # the distance from the circle counts once on the orbit
             on_orbit = (t_now - self.segment_start + s.h * np.arange(s.N + 1)) > self.reference.segments[0][0].T
-            circle = (orbit.centre, orbit.radius, self.weights.radial * on_orbit)
-        x, lam, status, ok, seconds = self.solver.solve(z, Zr, Ur, self.estimator.params(), self.warm, circle, diag)
+            mission_weights = self.weights.radial * on_orbit
+        x, lam, status, ok, seconds = self.solver.solve(z, Zr, Ur, self.estimator.params(), self.warm, mission_weights,
+                                                        diag)
         compute = seconds if s.realtime else self.solver.modelled_time()
         late = compute > (s.h if s.max_solve_time is None else s.max_solve_time)
         self.log["solve_times"].append(seconds)

@@ -3,13 +3,14 @@
 The problem (``tracking_problem``), over a horizon of ``N`` intervals of
 ``h`` seconds from the measured state ``x0``::
 
-    min  sum_k h |W_k (x_k - x_ref,k)|^2 + h |w_u,k (u_k - u_ref,k)|^2 + h |w_r,k (|s_k - c| - R_g)|^2
+    min  sum_k h |W_k (x_k - x_ref,k)|^2 + h |w_u,k (u_k - u_ref,k)|^2 + h |w_m,k r_m(x_k)|^2
          + terminal terms at k = N
     s.t. x_0 = x0, continuity, motor torque, no jump, no slide, driving speed, motor acceleration
 
-with the reference, the weights of every node and the target circle as
-parameters of each solve (stage parameters: the holds at a stop, the brake
-and the circles change them, not the problem).  Every term is a least-squares
+with the reference and the weights of every node as parameters of each solve
+(stage parameters: the holds at a stop, the brake and the orbit change them,
+not the problem) and ``r_m`` the mission's own residuals
+(``Mission.tracking_terms``: a circle's is the distance from it).  Every term is a least-squares
 residual, so the real-time iteration's Gauss-Newton Hessian ``J^T J`` and its
 gradients come from CasADi's AD of the same description that IPOPT solves.
 
@@ -31,6 +32,7 @@ from rollbot_oc.codegen import compiler
 from rollbot_oc.control.nmpc.settings import NMPCSettings, TrackingWeights
 from rollbot_oc.dynamics import NZ
 from rollbot_oc.errors import NotConverged
+from rollbot_oc.missions.base import Mission
 from rollbot_oc.ocp import OCP
 from rollbot_oc.ocp.constraints import driving_speed, motor_accel, motor_torque, no_jump, no_slide
 from rollbot_oc.params import RollbotParams
@@ -41,25 +43,27 @@ RELAXABLE = ("motor torque", "no jump", "no slide")  # dropped from a QP no comm
 
 
 def tracking_problem(N: int, h: float, substeps: int = 2, torque_margin: float = 0.95, normal_margin: float = 0.1,
-                     friction_margin: float = 0.95, speed_margin: float = 0.98, constraints=()) -> OCP:
+                     friction_margin: float = 0.95, speed_margin: float = 0.98, constraints=(),
+                     mission: type[Mission] | Mission | None = None) -> OCP:
     """The NMPC's tracking problem (module doc) on ``N`` intervals of ``h`` s.
 
     Stage parameters: ``reference`` (10) and ``accel_reference`` (1), the
     square roots of the weights ``state_weight`` (10), ``accel_weight`` and
-    ``radial_weight``; parameters ``x0`` (10) and ``circle`` (centre x, y,
-    radius; m).  The margins are the fractions of the limits it may use;
-    ``constraints``: more path constraints, functions of the ``OCP`` giving a
-    ``Constraint`` (``NMPCSettings.constraints``).
+    ``mission_weight`` (one per residual of the mission's ``tracking_terms``);
+    parameter ``x0`` (10) and those the mission declares.  The margins are
+    the fractions of the limits it may use; ``constraints``: more path
+    constraints, functions of the ``OCP`` giving a ``Constraint``
+    (``NMPCSettings.constraints``).
     """
     ocp = OCP(N=N, T=N * h, substeps=substeps)
     x, u = ocp.x, ocp.u
     ocp.initial_state()
     reference, accel_reference = ocp.stage_parameter("reference", NZ), ocp.stage_parameter("accel_reference")
     state_weight, accel_weight = ocp.stage_parameter("state_weight", NZ), ocp.stage_parameter("accel_weight")
-    radial_weight, circle = ocp.stage_parameter("radial_weight"), ocp.parameter("circle", 3)
-    offset = ocp.state.position - circle[0:2]
-    radial = radial_weight * (ca.sqrt(ca.sumsqr(offset) + 1e-9) - circle[2])  # distance from the circle
-    tracking = ca.vertcat(state_weight * (x - reference), radial)
+    terms = mission.tracking_terms(ocp) if mission is not None else []
+    mission_weight = ocp.stage_parameter("mission_weight", len(terms))
+    tracking = ca.vertcat(state_weight * (x - reference), mission_weight * ca.vertcat(*terms)) if terms \
+        else state_weight * (x - reference)
     ocp.add_least_squares(ca.vertcat(tracking, accel_weight * (u - accel_reference)))
     ocp.add_least_squares(tracking, at="end")
     ocp.subject_to(motor_torque(ocp, torque_margin), no_jump(ocp, normal_margin), no_slide(ocp, friction_margin),
@@ -69,9 +73,11 @@ def tracking_problem(N: int, h: float, substeps: int = 2, torque_margin: float =
 
 
 @functools.lru_cache(maxsize=8)
-def _route(route: str, N: int, h: float, substeps: int, margins: tuple, constraints: tuple, compiled: bool):
-    """The tracking problem's solver by ``route``, built once per horizon, margins and extra constraints."""
-    ocp = tracking_problem(N, h, substeps, *margins, constraints=constraints)
+def _route(route: str, N: int, h: float, substeps: int, margins: tuple, constraints: tuple, kind: type,
+           compiled: bool):
+    """The tracking problem's solver by ``route``, built once per horizon, margins, extra constraints and
+    mission kind (``kind``, a ``Mission`` class: its terms are written once per kind)."""
+    ocp = tracking_problem(N, h, substeps, *margins, constraints=constraints, mission=kind)
     if route == "rti":
         # HPIPM (interior point: no active set to warm-start, residuals to 1e-6), and qrqp where it fails
         hpipm = {"iter_max": 50, "mode": "balance", **{f"res_{r}_max": 1e-6 for r in "gbdm"}}
@@ -86,13 +92,17 @@ class _Tracking:
 
     route_name = ""
 
-    def __init__(self, params: RollbotParams, settings: NMPCSettings, weights: TrackingWeights):
+    def __init__(self, params: RollbotParams, settings: NMPCSettings, weights: TrackingWeights,
+                 mission: Mission | None = None):
         s = self.settings = settings
         self.params = params
+        self.mission = mission if mission is not None else Mission()
+        self._mission_values = self.mission.tracking_values()
         use_c = s.compiled if s.compiled is not None else compiler() is not None
         self.compiled = use_c and self.route_name == "rti"
         margins = (s.torque_margin, s.normal_margin, s.friction_margin, s.speed_margin)
-        self.route = _route(self.route_name, s.N, s.h, s.substeps, margins, tuple(s.constraints), self.compiled)
+        self.route = _route(self.route_name, s.N, s.h, s.substeps, margins, tuple(s.constraints),
+                            type(self.mission), self.compiled)
         ocp = self.route.transcription.ocp
         self.relax = RELAXABLE + tuple(c.name for c, at in ocp.constraints[-len(s.constraints):]) \
             if s.constraints else RELAXABLE
@@ -101,29 +111,30 @@ class _Tracking:
         self.n_x = self.layout.size
         self._last = None
 
-    def _parameters(self, z0, Zr, Ur, p, circle, diag) -> dict:
-        """The solve's parameters: node weights ``diag`` (``TrackingWeights.diagonal``) as the square roots the
-        problem takes; the last node's by ``h`` (the path terms are integrals, the terminal one is not)."""
+    def _parameters(self, z0, Zr, Ur, p, mission_weights, diag) -> dict:
+        """The solve's parameters: node weights ``diag`` (``TrackingWeights.diagonal``) and ``mission_weights``
+        as the square roots the problem takes; the last node's by ``h`` (the path terms are integrals, the
+        terminal one is not)."""
         N, h = self.settings.N, self.settings.h
         diag = self.diag if diag is None else diag
         node = np.ones(N + 1)
         node[-1] = h
         state_weight = np.sqrt(diag[:NZ * (N + 1)].reshape(N + 1, NZ).T * node)
-        if circle is None:
-            circle = (np.zeros(2), 1.0, np.zeros(N + 1))
-        centre, radius, radial = circle
+        n_terms = self.layout.stage_parameters["mission_weight"]
+        n_terms = n_terms.stop - n_terms.start
+        weights = np.zeros((n_terms, N + 1)) if mission_weights is None else \
+            np.broadcast_to(np.asarray(mission_weights, float), (n_terms, N + 1))
         return dict(x0=np.asarray(z0, float), p=p, reference=np.asarray(Zr, float),
                     accel_reference=np.append(np.ravel(Ur), 0.0)[None, :],
                     state_weight=state_weight, accel_weight=np.append(np.sqrt(diag[NZ * (N + 1):]), 0.0)[None, :],
-                    radial_weight=np.sqrt(np.asarray(radial, float) * node)[None, :],
-                    circle=np.concatenate([np.asarray(centre, float), [radius]]))
+                    mission_weight=np.sqrt(weights * node), **self._mission_values)
 
     def _guess(self, z0, Zr, Ur):
         x = self.layout.pack(np.asarray(Zr, float), np.ravel(Ur)[None, :])
         x[:NZ] = z0
         return x
 
-    def solve(self, z0, Zr, Ur, p, warm=None, circle=None, diag=None):
+    def solve(self, z0, Zr, Ur, p, warm=None, mission_weights=None, diag=None):
         """Solve from ``warm`` (``(x, lam_w, lam_g)``; else from the reference); returns
         ``(x, (lam_w, lam_g), status, success, seconds)``.
 
@@ -137,12 +148,13 @@ class _Tracking:
             Reference motor accelerations, rad/s^2.
         p : array_like
             The model parameter vector (the estimated tilt in it).
-        circle : (centre (2,), radius, weights (N+1,)), optional
-            The distance from a target circle, weighted per node (m, 1/m^2).
+        mission_weights : array_like (N+1,) or (terms, N+1), optional
+            Weights of the mission's residuals at each node (for a circle, of
+            the distance from it, 1/m^2); none by default.
         diag : array_like, optional
             Tracking weights of every decision variable (``TrackingWeights.diagonal``).
         """
-        values = self._parameters(z0, Zr, Ur, p, circle, diag)
+        values = self._parameters(z0, Zr, Ur, p, mission_weights, diag)
         x, lam_w, lam_g = warm if warm is not None else (None, None, None)
         guess = self._guess(z0, Zr, Ur) if x is None else x
         try:
@@ -179,8 +191,9 @@ class RTISolver(_Tracking):
 
     route_name = "rti"
 
-    def __init__(self, params: RollbotParams, settings: NMPCSettings, weights: TrackingWeights, iterations: int = 1):
-        super().__init__(params, settings, weights)
+    def __init__(self, params: RollbotParams, settings: NMPCSettings, weights: TrackingWeights, iterations: int = 1,
+                 mission: Mission | None = None):
+        super().__init__(params, settings, weights, mission)
         self.iterations = iterations
 
     def _attempt(self, guess, multipliers, values):

@@ -117,7 +117,7 @@ class OCPSettings:
     max_iter: int = 400
     hessian: str = "limited-memory"
     accel_margin: float = 1.0
-    expand: bool = False
+    expand: bool = True
     compiled: bool = False
 
 

@@ -248,7 +248,7 @@ def test_one_constraint_reaches_every_problem_of_the_nmpc():
     """``NMPCSettings.constraints``: one line, and the legs the NMPC plans and its tracking problem keep it."""
     from rollbot_oc.control.nmpc.loop import _rest_to_rest
     from rollbot_oc.control.nmpc.tracking import RTISolver
-    from rollbot_oc.dynamics import rest_state
+    from rollbot_oc.dynamics import rest_state, to_reduced
     from rollbot_oc.ocp.constraints import position_box
 
     lower, upper = np.array([-0.35, -0.35]), np.array([1.25, 1.25])
@@ -267,4 +267,27 @@ def test_one_constraint_reaches_every_problem_of_the_nmpc():
         | {name: np.zeros(sl.stop - sl.start) for name, sl in tracking.layout.stage_parameters.items()}
         | {"p": params.vector()}))
     positions = tracking.layout.states(np.arange(tracking.layout.size))[0:2].astype(int)  # their places in w
-    assert np.allclose(lbw[positions], lower[:, None]) and np.allclose(ubw[positions], upper[:, None])
+    assert np.allclose(lbw[positions[:, 1:]], lower[:, None]) and np.allclose(ubw[positions[:, 1:]], upper[:, None])
+    assert np.all(np.isinf(lbw[positions[:, 0]]))  # node 0 is the measured state: not bounded
+    # 5 cm outside the box at rest: no command brings the robot back within the next 0.1 s, so the QP with the box
+    # has no solution; the measured state (node 0) is not bounded, and the QP is solved once more without the box
+    solver = RTISolver(params, settings, settings.waypoint_weights)
+    z0 = to_reduced(rest_state(params, position=(-0.40, -0.30)))
+    _, _, status, ok, _ = solver.solve(z0, np.tile(z0[:, None], (1, settings.N + 1)), np.zeros(settings.N),
+                                       params.vector())
+    assert ok and status.startswith("relaxed ("), status
+
+
+def test_the_tightest_of_two_bounds_of_one_entry_holds():
+    """Two simple bounds of the same state: the tighter one, whichever comes first."""
+    from rollbot_oc.ocp import OCP, bounded
+    from rollbot_oc.ocp.constraints import driving_speed
+
+    for order in (1, -1):
+        ocp = OCP(N=3, T=1.0)
+        ocp.subject_to(*[driving_speed(ocp, 0.5), bounded(-8.0, ocp.state.theta_dot, 8.0, "loose")][::order])
+        tr = ocp.solver("ipopt").transcription
+        lbw, ubw = tr.bounds(tr.parameter_vector({"p": RollbotParams().vector()}))
+        speeds = tr.layout.states(np.arange(tr.layout.size))[9].astype(int)
+        assert np.allclose(ubw[speeds], 0.5 * RollbotParams().max_speed)
+        assert np.allclose(lbw[speeds], -0.5 * RollbotParams().max_speed)

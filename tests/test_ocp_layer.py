@@ -140,3 +140,18 @@ def test_the_structured_linearisation_equals_the_nlps_ad(leg):
     assert np.abs(g - np.array(rg).ravel()).max() < 1e-12
     assert float(ca.norm_inf(J - rJ)) < 1e-12
     assert f == pytest.approx(float(rf), rel=1e-12)
+
+
+def test_stage_parameters_take_a_column_per_node_and_refuse_a_transposed_array():
+    ocp = OCP(N=4, T=1.0)
+    reference = ocp.stage_parameter("reference", 2)
+    ocp.add_least_squares(ocp.state.position - reference)
+    tr = ocp.solver("ipopt").transcription
+    values = np.arange(10.0).reshape(2, 5)  # (entries, nodes)
+    par = tr.parameter_vector({"p": PARAMS.vector(), "reference": values})
+    # node k's column sits at the k-th place of the stage block, as the NLP and the linearisation read it
+    assert np.array_equal(par[tr.layout.stage_block].reshape(5, 2).T, values)
+    assert np.array_equal(tr.parameter_vector({"p": PARAMS.vector(), "reference": [1.0, 2.0]})[tr.layout.stage_block],
+                          np.tile([1.0, 2.0], 5))
+    with pytest.raises(ConfigError, match="reference.*shape"):
+        tr.parameter_vector({"p": PARAMS.vector(), "reference": values.T})

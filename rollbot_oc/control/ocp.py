@@ -44,18 +44,17 @@ import numpy as np
 
 from rollbot_oc.codegen import compiler
 from rollbot_oc.errors import NotConverged
-from rollbot_oc.dynamics import NW, NZ, REDUCED, from_reduced, reduced_model, rk4, to_reduced
-from rollbot_oc.params import NP, PARAM_INDEX, TILT, RollbotParams
+from rollbot_oc.dynamics import NZ, REDUCED, from_reduced, to_reduced
+from rollbot_oc.params import PARAM_INDEX, TILT, RollbotParams
 from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_state
 from rollbot_oc.rotations import quat_multiply
 from rollbot_oc.ocp import OCP, FreeTime, bounded
-from rollbot_oc.ocp.constraints import at_rest, driving_speed, motor_accel, motor_torque, no_jump, no_slide
+from rollbot_oc.ocp.constraints import at_rest, robot_limits
 from rollbot_oc.simulate import simulate
 
-__all__ = ["OCPSettings", "Plan", "RestToRest", "OrbitEntry", "plan_waypoints", "interval_function",
+__all__ = ["OCPSettings", "Plan", "RestToRest", "OrbitEntry", "plan_waypoints",
            "quasi_stable_guess", "quasi_stable_guesses", "orbit_state", "SolveFailed"]
 
-_W0 = ca.DM.zeros(NW)
 
 
 class SolveFailed(NotConverged):
@@ -119,15 +118,6 @@ class OCPSettings:
     accel_margin: float = 1.0
     expand: bool = True
     compiled: bool = False
-
-
-@functools.lru_cache(maxsize=None)
-def interval_function(substeps: int) -> ca.Function:
-    """``(z, u, h, p) -> z(h)``: RK4 over one interval of the reduced model, input held, no external wrench."""
-    red = reduced_model()
-    z, u, h, p = ca.SX.sym("z", NZ), ca.SX.sym("u"), ca.SX.sym("h"), ca.SX.sym("p", NP)
-    z_next = rk4(red.f, z, h, substeps, u, p, _W0)
-    return ca.Function("rk4_interval", [z, u, h, p], [z_next], ["z", "u", "h", "p"], ["z_next"])
 
 
 def orbit_state(qs_reduced, centre, phase):
@@ -249,10 +239,8 @@ class _MinTimeOCP:
         ocp.initial_state()
         ocp.minimize_time()
         ocp.add_cost(s.effort_weight * ocp.control.accel ** 2)
-        ocp.subject_to(motor_torque(ocp, s.torque_margin), no_jump(ocp, s.normal_margin),
-                       no_slide(ocp, s.friction_margin), driving_speed(ocp, s.speed_margin),
-                       motor_accel(ocp, s.accel_margin))
-        ocp.subject_to(*(make(ocp) for make in self.constraints))
+        ocp.subject_to(*robot_limits(ocp, s.torque_margin, s.normal_margin, s.friction_margin, s.speed_margin,
+                                     s.accel_margin, self.constraints))
         self._end(ocp)
         return ocp
 

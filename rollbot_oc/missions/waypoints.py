@@ -147,7 +147,7 @@ def _onboard_stop_metrics(stops: list, result) -> dict:
     """Stop errors of the true position, and how far the estimate was off at each stop (onboard sensing)."""
     record = result.estimation
     steps = [min(int(round(stop["time"] / result.dt)), len(record) - 1) for stop in stops]
-    truth = [result.x[0:2, k] for k in steps]
+    truth = [result.position[:, k] for k in steps]
     estimated = [record.estimate[0:2, k] for k in steps]
     return {
         "stop_errors": [float(np.linalg.norm(s - np.asarray(stop["point"]))) for s, stop in zip(truth, stops)],

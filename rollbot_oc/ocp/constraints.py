@@ -20,7 +20,7 @@ from rollbot_oc.dynamics import NW, imbalance, reduced_model
 from rollbot_oc.ocp.problem import OCP, Constraint
 
 __all__ = ["motor_torque", "driving_speed", "motor_accel", "no_jump", "no_slide", "position_box",
-           "circular_obstacle", "at_rest", "reaction_force"]
+           "circular_obstacle", "at_rest", "reaction_force", "robot_limits"]
 
 _W0 = ca.DM.zeros(NW)
 
@@ -65,6 +65,18 @@ def no_slide(ocp: OCP, margin: float = 0.95) -> Constraint:
     P = ocp.params
     slack = ((margin * P.mu * N[2]) ** 2 - N[0] ** 2 - N[1] ** 2) / P.weight ** 2
     return Constraint(slack, 0.0, np.inf, "no slide")
+
+
+def robot_limits(ocp: OCP, torque: float = 1.0, normal: float = 0.1, friction: float = 0.95, speed: float = 1.0,
+                 accel: float = 1.0, constraints=()) -> list[Constraint]:
+    """Every limit of the robot with its margin (motor torque, no jump, no slide, driving speed, motor
+    acceleration), and ``constraints`` (functions of the ``OCP`` giving a ``Constraint`` or a relation):
+    what each of the toolkit's own problems (legs, orbit entry, gates, the NMPC's tracking) is subject to::
+
+        ocp.subject_to(*robot_limits(ocp, 0.9, 0.3, 0.8, 0.95, 0.85))
+    """
+    return [motor_torque(ocp, torque), no_jump(ocp, normal), no_slide(ocp, friction), driving_speed(ocp, speed),
+            motor_accel(ocp, accel), *(make(ocp) for make in constraints)]
 
 
 def position_box(ocp: OCP, lower, upper) -> Constraint:

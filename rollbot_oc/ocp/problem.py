@@ -186,6 +186,7 @@ class OCP:
         self.params = ParamView(self.p)
         self.parameters: dict[str, ca.SX] = {}
         self.stage_parameters: dict[str, ca.SX] = {}
+        self.fixed_start = False  # x(0) given (``initial_state``)
         self.variables: dict[str, tuple] = {}  # name -> (symbol, lower, upper, guess)
         self.costs: list[tuple] = []           # (kind, expression, at)
         self.constraints: list[tuple] = []     # (Constraint, at)
@@ -234,6 +235,7 @@ class OCP:
         """Declare the parameter ``name`` and the constraint ``x(0) = name``; returns the parameter."""
         x0 = self.parameter(name, self.model.nx)
         self.subject_to(self.x == x0, at="start", name="initial state")
+        self.fixed_start = True
         return x0
 
     # -- costs ----------------------------------------------------------------------------------

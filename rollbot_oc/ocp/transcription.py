@@ -295,7 +295,6 @@ class Transcription:
         self.ubg = np.concatenate([st.upper for st in self.stages])
         self.lbw, self.ubw = self._variable_bounds(phase_of)
         self._bound_places = self._simple_bound_places()
-        self._bound_cache = (None, None)
         self.global_columns = np.concatenate([np.arange(sl.start, sl.stop) for sl in variables.values()]
                                              ).astype(int) if variables else np.zeros(0, int)
 
@@ -334,19 +333,34 @@ class Transcription:
         return list(out.values())
 
     def _simple_bound_places(self):
-        """``(columns of w, index of the coefficient row)`` of every simple bound, node by node."""
+        """``(columns of w, index of the coefficient row)`` of every simple bound, node by node.
+
+        Controls have no last node, and neither has a constraint that involves
+        them (as its rows would not).  A state fixed at the start by
+        ``OCP.initial_state`` is not bounded there (as acados keeps node 0
+        apart): the measured state of an NMPC may lie outside a bound, and
+        the problem must still have a solution that brings it back.
+        """
         L, n = self.layout, self.layout.intervals
         columns, which, row = [], [], 0
+        self._bound_columns = {}
         for b in self._simple:
-            local = np.where(b.is_control, L.nx + L.nt + b.index - L.nx, b.index)
-            nodes = n + 1 if not b.is_control.any() else n  # controls have no last node
-            for k in range(nodes):
-                columns.append(k * L.stage + local)
-                which.append(row + np.arange(local.size))
-            row += local.size
-        if not columns:
-            return np.zeros(0, int), np.zeros(0, int)
-        return np.concatenate(columns).astype(int), np.concatenate(which).astype(int)
+            last = n + 1 if not b.is_control.any() else n
+            for i, (index, control) in enumerate(zip(b.index, b.is_control)):
+                local = L.nx + L.nt + index - L.nx if control else index
+                first = 1 if (self.ocp.fixed_start and not control) else 0
+                for k in range(first, last):
+                    columns.append(k * L.stage + local)
+                    which.append(row + i)
+                    self._bound_columns.setdefault(b.constraint.name, []).append(columns[-1])
+            row += b.index.size
+        return np.array(columns, int), np.array(which, int)
+
+    def columns_of(self, name: str) -> np.ndarray:
+        """Entries of ``w`` (indices) that the constraints named ``name`` bound, when they are kept as simple
+        bounds (none when they are rows: ``rows_of``)."""
+        self.rows_of(name)  # an unknown name is an error
+        return np.array(self._bound_columns.get(name, []), int)
 
     def _bound_function(self) -> ca.Function:
         """``(p, q) -> (lower, upper)`` of the simple bounds' entries of ``w`` (one row per bound row)."""
@@ -365,19 +379,16 @@ class Transcription:
         if not columns.size:
             return self.lbw, self.ubw
         par = np.asarray(par, float)
-        key = par[:self.layout.stage_block.start].tobytes()
-        if self._bound_cache[0] != key:
-            if "_bounds_fun" not in self.__dict__:
-                self._bounds_fun = self._bound_function()
-            L = self.layout
-            q = np.concatenate([par[L.parameters[name]] for name in self.ocp.parameters]) \
-                if self.ocp.parameters else np.zeros(0)
-            lo, hi = (np.array(v).ravel() for v in self._bounds_fun(par[L.parameters["p"]], q))
-            lbw, ubw = self.lbw.copy(), self.ubw.copy()
-            lbw[columns] = np.maximum(lbw[columns], lo[which])
-            ubw[columns] = np.minimum(ubw[columns], hi[which])
-            self._bound_cache = (key, (lbw, ubw))
-        return self._bound_cache[1]
+        if "_bounds_fun" not in self.__dict__:
+            self._bounds_fun = self._bound_function()
+        L = self.layout
+        q = np.concatenate([par[L.parameters[name]] for name in self.ocp.parameters]) \
+            if self.ocp.parameters else np.zeros(0)
+        lo, hi = (np.array(v).ravel() for v in self._bounds_fun(par[L.parameters["p"]], q))
+        lbw, ubw = self.lbw.copy(), self.ubw.copy()
+        np.maximum.at(lbw, columns, lo[which])  # several bounds of one entry: the tightest holds
+        np.minimum.at(ubw, columns, hi[which])
+        return lbw, ubw
 
     def bounds_symbolic(self, par: ca.MX) -> tuple[ca.MX, ca.MX]:
         """``bounds`` as CasADi expressions of a symbolic parameter vector (for ``to_function``)."""
@@ -389,8 +400,9 @@ class Transcription:
         q = ca.vertcat(*[par[L.parameters[name]] for name in self.ocp.parameters]) if self.ocp.parameters \
             else ca.MX(0, 1)
         lo, hi = self._bound_function()(par[L.parameters["p"]], q)
-        lbw[columns.tolist()] = ca.fmax(lbw[columns.tolist()], lo[which.tolist()])
-        ubw[columns.tolist()] = ca.fmin(ubw[columns.tolist()], hi[which.tolist()])
+        for column, row in zip(columns.tolist(), which.tolist()):  # one at a time: the tightest of several holds
+            lbw[column] = ca.fmax(lbw[column], lo[row])
+            ubw[column] = ca.fmin(ubw[column], hi[row])
         return lbw, ubw
 
     def rows_of(self, name: str) -> np.ndarray:
@@ -515,12 +527,14 @@ class Transcription:
             if name not in values:
                 raise ConfigError(f"OCP stage parameter {name!r} ({n_rows} per node) was not given")
             value = np.asarray(values[name], float)
-            if value.size == n_rows:
+            if value.shape in ((n_rows,), (n_rows, 1)):
                 value = np.repeat(value.reshape(n_rows, 1), nodes, axis=1)
-            if value.shape != (n_rows, nodes) and value.size != n_rows * nodes:
+            elif n_rows == 1 and value.shape == (nodes,):
+                value = value[None, :]
+            if value.shape != (n_rows, nodes):
                 raise ConfigError(f"OCP stage parameter {name!r} has shape {value.shape}, expected "
-                                  f"({n_rows}, {nodes}) or ({n_rows},)")
-            column[:, rows] = value.reshape(n_rows, nodes).T
+                                  f"({n_rows}, {nodes}) (a column per node) or ({n_rows},)")
+            column[:, rows] = value.T
         for name, index in L.parameters.items():
             if name not in values:
                 raise ConfigError(f"OCP parameter {name!r} ({index.stop - index.start} entries) was not given")

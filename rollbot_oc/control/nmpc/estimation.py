@@ -8,10 +8,10 @@ import math
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.control.ocp import NP, interval_function
+from rollbot_oc.ocp import rollbot_model
 from rollbot_oc.dynamics import NZ, REDUCED
 from rollbot_oc.fastcall import FastFunction
-from rollbot_oc.params import TILT, RollbotParams
+from rollbot_oc.params import NP, TILT, RollbotParams
 
 __all__ = ["TiltEstimator"]
 
@@ -19,7 +19,7 @@ __all__ = ["TiltEstimator"]
 @functools.lru_cache(maxsize=None)
 def _one_step(substeps: int, dt: float) -> ca.Function:
     """``(z, u, p) -> (z_next, d omega_next / d tilt)`` over one control period, for the estimator."""
-    F = interval_function(substeps)
+    F = rollbot_model().interval(substeps)  # the model every OCP of the toolkit predicts with
     z, u, p = ca.SX.sym("z", NZ), ca.SX.sym("u"), ca.SX.sym("p", NP)
     zn = F(z, u, dt, p)
     return ca.Function("one_step", [z, u, p], [zn, ca.jacobian(zn[REDUCED.omega], p)[:, TILT]])

@@ -18,7 +18,7 @@ import numpy as np
 
 from rollbot_oc.control.ocp import OCPSettings, Plan, SolveFailed, quasi_stable_guess
 from rollbot_oc.ocp import OCP, FreeTime
-from rollbot_oc.ocp.constraints import driving_speed, motor_accel, motor_torque, no_jump, no_slide
+from rollbot_oc.ocp.constraints import robot_limits
 from rollbot_oc.params import TILT, RollbotParams
 
 __all__ = ["GatePlan", "plan_gates", "GATE_INTERVALS"]
@@ -50,9 +50,8 @@ def _gate_route(count: int, settings: OCPSettings, constraints: tuple = ()):
     gates = ocp.parameter("gates", 2 * count)
     ocp.minimize_time()
     ocp.add_least_squares(u.accel / ocp.params.max_accel, weight=EFFORT)
-    ocp.subject_to(motor_torque(ocp, s.torque_margin), no_jump(ocp, s.normal_margin), no_slide(ocp, s.friction_margin),
-                   driving_speed(ocp, s.speed_margin), motor_accel(ocp, s.accel_margin))
-    ocp.subject_to(*(make(ocp) for make in constraints))
+    ocp.subject_to(*robot_limits(ocp, s.torque_margin, s.normal_margin, s.friction_margin, s.speed_margin,
+                                 s.accel_margin, constraints))
     for i in range(count):
         ocp.subject_to(x.position == gates[2 * i:2 * i + 2], at=("end", i), name=f"gate {i + 1}")
     return ocp.solver("ipopt", hessian=s.hessian, max_iter=s.max_iter, tol=1e-6)

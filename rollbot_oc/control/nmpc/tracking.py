@@ -31,10 +31,9 @@ import numpy as np
 from rollbot_oc.codegen import compiler
 from rollbot_oc.control.nmpc.settings import NMPCSettings, TrackingWeights
 from rollbot_oc.dynamics import NZ
-from rollbot_oc.errors import NotConverged
 from rollbot_oc.missions.base import Mission
 from rollbot_oc.ocp import OCP
-from rollbot_oc.ocp.constraints import driving_speed, motor_accel, motor_torque, no_jump, no_slide
+from rollbot_oc.ocp.constraints import robot_limits
 from rollbot_oc.params import RollbotParams
 
 __all__ = ["tracking_problem", "TrackingSolver", "RTISolver", "RELAXABLE"]
@@ -66,9 +65,7 @@ def tracking_problem(N: int, h: float, substeps: int = 2, torque_margin: float =
         else state_weight * (x - reference)
     ocp.add_least_squares(ca.vertcat(tracking, accel_weight * (u - accel_reference)))
     ocp.add_least_squares(tracking, at="end")
-    ocp.subject_to(motor_torque(ocp, torque_margin), no_jump(ocp, normal_margin), no_slide(ocp, friction_margin),
-                   driving_speed(ocp, speed_margin), motor_accel(ocp))
-    ocp.subject_to(*(make(ocp) for make in constraints))
+    ocp.subject_to(*robot_limits(ocp, torque_margin, normal_margin, friction_margin, speed_margin, 1.0, constraints))
     return ocp
 
 
@@ -130,9 +127,9 @@ class _Tracking:
                     mission_weight=np.sqrt(weights * node), **self._mission_values)
 
     def _guess(self, z0, Zr, Ur):
-        x = self.layout.pack(np.asarray(Zr, float), np.ravel(Ur)[None, :])
-        x[:NZ] = z0
-        return x
+        Z = np.array(Zr, float)
+        Z[:, 0] = z0  # the horizon starts at the measured state
+        return self.layout.pack(Z, np.ravel(Ur)[None, :])
 
     def solve(self, z0, Zr, Ur, p, warm=None, mission_weights=None, diag=None):
         """Solve from ``warm`` (``(x, lam_w, lam_g)``; else from the reference); returns
@@ -159,8 +156,8 @@ class _Tracking:
         guess = self._guess(z0, Zr, Ur) if x is None else x
         try:
             sol = self._attempt(guess, (lam_w, lam_g) if lam_w is not None else None, values)
-        except NotConverged as exc:  # never a crash of the loop
-            return guess, (lam_w, lam_g), f"error: {exc.status}", False, 0.0
+        except RuntimeError as exc:  # a solver's own error is a failed solve, never a crash of the loop
+            return guess, (lam_w, lam_g), f"error: {str(exc).splitlines()[-1][:60]}", False, 0.0
         self._last = sol
         ok = sol.success and bool(np.all(np.isfinite(sol.w)))
         return sol.w, (sol.lam_w, sol.lam_g), sol.status, ok, sol.solve_time

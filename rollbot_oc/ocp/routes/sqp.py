@@ -110,8 +110,8 @@ class SQPRoute:
 
     # -- one QP ---------------------------------------------------------------------------------
     def _qp_step(self, w, lam_w, lam_g, par, relax=None):
-        """The QP at ``w``: returns ``(d, lam_w, lam_g, ok, status, f, g, grad)``; ``relax``: rows of ``g``
-        dropped if the QP fails with them."""
+        """The QP at ``w``: returns ``(d, lam_w, lam_g, ok, status, f, g, grad)``; ``relax``: ``(rows of g,
+        entries of w)`` whose constraints and bounds are dropped if the QP fails with them."""
         tr = self.transcription
         H, grad, g, J, f = self.linearisation(w, par)
         if not (np.all(np.isfinite(g)) and np.all(np.isfinite(grad)) and np.all(np.isfinite(np.array(J.nonzeros())))):
@@ -119,9 +119,11 @@ class SQPRoute:
         lbw, ubw = tr.bounds(par)
         args = dict(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=lbw - w, ubx=ubw - w)
         sol, ok, status = self._solve_qp(args, lam_w, lam_g)
-        if not ok and relax is not None and relax.size:
-            args["lba"], args["uba"] = args["lba"].copy(), args["uba"].copy()
-            args["lba"][relax], args["uba"][relax] = -np.inf, np.inf
+        if not ok and relax is not None and (relax[0].size or relax[1].size):
+            rows, columns = relax
+            for key, index in (("lba", rows), ("uba", rows), ("lbx", columns), ("ubx", columns)):
+                args[key] = np.array(args[key], float)
+                args[key][index] = -np.inf if key.startswith("lb") else np.inf
             sol, ok, relaxed = self._solve_qp(args, None, None)
             status = f"relaxed ({status})" if ok else relaxed
         if sol is None:
@@ -133,8 +135,10 @@ class SQPRoute:
         """``(solution, ok, status)`` of one QP: by each QP solver in turn, warm-started from ``lam_w, lam_g``
         if given and once more cold if that fails; the first solver's status if none solves it."""
         first = None
-        for qp in self.qps:
-            sol, ok, status = self._solve_qp_by(qp, args, lam_w, lam_g)
+        for i, qp in enumerate(self.qps):
+            # the multipliers come from the first solver's previous solution: another solver starts cold (an
+            # interior point's small multipliers would read as an active set to an active-set solver)
+            sol, ok, status = self._solve_qp_by(qp, args, lam_w if i == 0 else None, lam_g if i == 0 else None)
             if ok:
                 return sol, ok, status
             first = first or (sol, ok, status)
@@ -185,8 +189,8 @@ class SQPRoute:
             w = np.clip(w + alpha * d, *self.transcription.bounds(par))  # a QP may overstep a bound a little
             lam_w = lw if lam_w is None else (1 - alpha) * lam_w + alpha * lw
             lam_g = lg if lam_g is None else (1 - alpha) * lam_g + alpha * lg
-            if max_iter == 1 and self.single_step:
-                return w, lam_w, lam_g, qp_status, True, it  # one step: the QP's own status
+            if self.single_step and it == max_iter:
+                return w, lam_w, lam_g, qp_status, True, it  # real-time iterations: the last QP's own status
             if np.abs(alpha * d).max(initial=0.0) < self.tol:
                 _f, g_new = self.merit(w, par)
                 if self._violation(g_new) < self.tol * max(1, g.size):
@@ -270,11 +274,14 @@ class SQPRoute:
         return OCPSolution(self.name, status, ok, it, elapsed, float(f), w, lam_w, lam_g, par, tr)
 
     def _relaxed_rows(self, names: tuple):
+        """``(rows of g, entries of w)`` of the constraints named ``names`` (rows, or simple bounds)."""
         if not names:
             return None
         cache = self.__dict__.setdefault("_relax_cache", {})
         if names not in cache:
-            cache[names] = np.concatenate([self.transcription.rows_of(name) for name in names])
+            tr = self.transcription
+            cache[names] = (np.concatenate([tr.rows_of(name) for name in names]).astype(int),
+                            np.concatenate([tr.columns_of(name) for name in names]).astype(int))
         return cache[names]
 
     def to_function(self) -> ca.Function:

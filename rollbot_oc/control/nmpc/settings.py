@@ -226,7 +226,8 @@ class NMPCSettings:
         start that has not converged by then seldom does, and the robot waits
         for the plans it gets from rest).
     entry : OCPSettings
-        Settings of a circle's entry onto its orbit (its ``N`` follows the entry time).
+        Settings of a circle's entry onto its orbit (its ``N`` follows the entry time; in CasADi's virtual
+        machine, expanded: compiling its stages as C pays only over many circles, ``compiled=True``).
     gates : OCPSettings
         Settings of the plan through gates (``nmpc.gates``; its ``N`` is unused:
         each gate has ``GATE_INTERVALS``): the exact Hessian, and 40 % of the
@@ -281,7 +282,7 @@ class NMPCSettings:
     ipopt_iteration_time: float = 0.01
     compiled: bool | None = None
     plan: OCPSettings = field(default_factory=lambda: OCPSettings(N=40, accel_margin=0.85, compiled=True, max_iter=150))
-    entry: OCPSettings = field(default_factory=lambda: OCPSettings(compiled=True))
+    entry: OCPSettings = field(default_factory=OCPSettings)
     gates: OCPSettings = field(default_factory=lambda: OCPSettings(accel_margin=0.85, speed_margin=0.6,
                                                                    hessian="exact"))
 

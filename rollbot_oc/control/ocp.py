@@ -223,9 +223,12 @@ class _MinTimeOCP:
         self.params = params
         self.settings = settings or OCPSettings()
         self.constraints = tuple(constraints)
-        self._routes = {}
-        self.route = self._route(None)  # the free-time problem, built now
-        self.compiled = bool(self.settings.compiled and compiler() is not None)
+        self._routes = {}  # built when first solved: a circle's entry only ever solves fixed durations
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the stages are evaluated as compiled C (asked for, and a C compiler exists)."""
+        return bool(self.settings.compiled and compiler() is not None)
 
     def _end(self, ocp: OCP) -> None:
         """Add the problem's end conditions (and its parameters and variables) to ``ocp``."""
@@ -247,8 +250,7 @@ class _MinTimeOCP:
     def _route(self, duration: float | None):
         key = None if duration is None else round(float(duration), 9)
         if key not in self._routes:
-            s = self.settings
-            compiled = bool(s.compiled and compiler() is not None)
+            s, compiled = self.settings, self.compiled
             self._routes[key] = self.problem(key).solver(
                 "ipopt", hessian="limited-memory" if compiled else s.hessian, max_iter=s.max_iter, tol=1e-6,
                 options={"acceptable_tol": 1e-4}, compiled=compiled, expand=s.expand or (s.compiled and not compiled))

@@ -109,14 +109,15 @@ class SQPRoute:
         self.qp = self.qps[0]
 
     # -- one QP ---------------------------------------------------------------------------------
-    def _qp_step(self, w, lam_w, lam_g, par, relax=None):
+    def _qp_step(self, w, lam_w, lam_g, par, relax, bounds):
         """The QP at ``w``: returns ``(d, lam_w, lam_g, ok, status, f, g, grad)``; ``relax``: ``(rows of g,
-        entries of w)`` whose constraints and bounds are dropped if the QP fails with them."""
+        entries of w)`` whose constraints and bounds are dropped if the QP fails with them; ``bounds``: ``(lbw,
+        ubw)`` for ``par`` (``Transcription.bounds``)."""
         tr = self.transcription
         H, grad, g, J, f = self.linearisation(w, par)
         if not (np.all(np.isfinite(g)) and np.all(np.isfinite(grad)) and np.all(np.isfinite(np.array(J.nonzeros())))):
             return None, lam_w, lam_g, False, "non-finite linearisation", float(f), g, None
-        lbw, ubw = tr.bounds(par)
+        lbw, ubw = bounds
         args = dict(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=lbw - w, ubx=ubw - w)
         sol, ok, status = self._solve_qp(args, lam_w, lam_g)
         if not ok and relax is not None and (relax[0].size or relax[1].size):
@@ -178,15 +179,16 @@ class SQPRoute:
         return float(np.sum(np.maximum(tr.lbg - g, 0.0)) + np.sum(np.maximum(g - tr.ubg, 0.0)))
 
     # -- iterations -----------------------------------------------------------------------------
-    def iterate(self, w, lam_w, lam_g, par, max_iter: int, relax=None):
+    def iterate(self, w, lam_w, lam_g, par, max_iter: int, relax=None, bounds=None):
         """Up to ``max_iter`` SQP iterations from ``w``; returns ``(w, lam_w, lam_g, status, ok, iterations)``."""
+        bounds = bounds if bounds is not None else self.transcription.bounds(par)
         status, ok, it = "max iterations", False, 0
         for it in range(1, max_iter + 1):
-            d, lw, lg, qp_ok, qp_status, f, g, grad = self._qp_step(w, lam_w, lam_g, par, relax)
+            d, lw, lg, qp_ok, qp_status, f, g, grad = self._qp_step(w, lam_w, lam_g, par, relax, bounds)
             if not qp_ok:
                 return w, lam_w, lam_g, f"QP failed: {qp_status}", False, it
             alpha = self._step_length(w, d, grad, lg, f, g, par) if self.line_search else 1.0
-            w = np.clip(w + alpha * d, *self.transcription.bounds(par))  # a QP may overstep a bound a little
+            w = np.clip(w + alpha * d, *bounds)  # a QP may overstep a bound a little
             lam_w = lw if lam_w is None else (1 - alpha) * lam_w + alpha * lw
             lam_g = lg if lam_g is None else (1 - alpha) * lam_g + alpha * lg
             if self.single_step and it == max_iter:
@@ -263,10 +265,11 @@ class SQPRoute:
         else:
             w = tr.default_guess() if guess is None else np.asarray(guess, float).copy()
             lam_w, lam_g = multipliers if multipliers is not None else (None, None)
-        w = np.clip(w, *tr.bounds(par))
+        bounds = tr.bounds(par)
+        w = np.clip(w, *bounds)
         rows = self._relaxed_rows(tuple(relax))
         start = time.perf_counter()
-        w, lam_w, lam_g, status, ok, it = self.iterate(w, lam_w, lam_g, par, max_iter or self.max_iter, rows)
+        w, lam_w, lam_g, status, ok, it = self.iterate(w, lam_w, lam_g, par, max_iter or self.max_iter, rows, bounds)
         elapsed = time.perf_counter() - start
         f, _g = self.merit(w, par)
         lam_w = np.zeros(w.size) if lam_w is None else lam_w

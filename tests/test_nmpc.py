@@ -42,7 +42,7 @@ def test_n_shape_faster_than_the_pid_with_real_stops():
     check_plant_limits(nmpc)
     check_real_time(nmpc)
     assert nmpc["plan_failures"] == 0 and max(nmpc["stop_errors"]) <= 0.03  # plan_time: benchmarks/
-    assert N_SHAPE_BOUND <= nmpc["completion_time"] <= 1.6 * N_SHAPE_BOUND  # the issue asks for 1.25
+    assert N_SHAPE_BOUND <= nmpc["completion_time"] <= 1.45 * N_SHAPE_BOUND  # measured 1.38; the issue asks for 1.25
 
 
 @pytest.mark.parametrize("name", ["circle_R020", "circle_R065"])  # the extremes (the README measures all four)
@@ -88,11 +88,12 @@ def test_failed_solves_fall_back_without_crashing(monkeypatch):
     """Every fourth solve fails: the loop carries on with shifted plans and, when failures pile up, the PID."""
     calls = {"n": 0}
     solve = RTISolver.solve
+    run = NMPCSettings().max_failures + 2  # a run of failures longer than the NMPC waits out
 
     def flaky(self, *args, **kwargs):
         calls["n"] += 1
         x, lam, status, ok, seconds = solve(self, *args, **kwargs)
-        if calls["n"] % 4 == 0 or 40 <= calls["n"] < 45:
+        if calls["n"] % 4 == 0 or 40 <= calls["n"] < 40 + run:
             return x, lam, "injected failure", False, seconds
         return x, lam, status, ok, seconds
 
@@ -145,7 +146,8 @@ def test_estimator_and_settings_validation():
 
 
 TIMING = ("step_time_min", "step_time_median", "step_time_p95", "step_time_max", "solve_time_min",
-          "solve_time_median", "solve_time_p95", "solve_time_max", "wall_time", "plan_time", "solve_time")
+          "solve_time_median", "solve_time_p95", "solve_time_max", "wall_time", "plan_time", "plan_solve_time_median",
+          "plan_solve_time_max", "solve_time")
 
 
 def without_timings(value):

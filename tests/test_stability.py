@@ -126,3 +126,32 @@ def test_batched_route_equals_the_continuation(params, branch):
         assert branch == "fast" or (ok[:150].all() and not ok[175:].any())
     else:
         assert ok.all()
+
+
+def test_sideways_sway_is_uncontrollable_at_rest():
+    """At rest, one of the two rocking modes (the paper's lambda2, tau about 7 s) cannot be reached by the
+    motor (PBH test on the AD linearisation of the pendulum-frame model); while moving it can (above).
+    Why the NMPC must arrive without sway: held at rest, a swaying robot only waits for the sway to decay."""
+    import casadi as ca
+
+    from rollbot_oc.dynamics import NZ, reduced_model, rest_state, to_reduced
+
+    params = RollbotParams()
+    model = reduced_model()
+    z, u = ca.SX.sym("z", NZ), ca.SX.sym("u")
+    w = np.zeros(model.f.size1_in(3))
+    f = model.f(z, u, params.vector(), w)
+    jac = ca.Function("rest_linearisation", [z, u], [ca.jacobian(f, z), ca.jacobian(f, u)])
+    A, B = (np.array(m) for m in jac(to_reduced(rest_state(params, heading=0.7)), 0.0))
+    eigenvalues = np.linalg.eigvals(A)
+    rocking = eigenvalues[eigenvalues.imag > 1.0]
+    assert rocking.size == 2 and abs(rocking[0] - rocking[1]) < 1e-9  # the two rocking directions: one frequency
+    lam = rocking[0]
+    assert -0.2 <= lam.real <= -0.1  # the paper's lambda2 band, decay time about 7 s
+
+    def rank(matrix):
+        singular = np.linalg.svd(matrix, compute_uv=False)
+        return int(np.sum(singular > 1e-9 * singular[0]))
+
+    assert rank(A - lam * np.eye(NZ)) == NZ - 2  # two independent rocking directions
+    assert rank(np.hstack([A - lam * np.eye(NZ), B])) == NZ - 1  # PBH: the motor reaches one of them, not both

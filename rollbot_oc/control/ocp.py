@@ -53,7 +53,7 @@ from rollbot_oc.ocp.constraints import at_rest, robot_limits
 from rollbot_oc.simulate import simulate
 
 __all__ = ["OCPSettings", "Plan", "RestToRest", "OrbitEntry", "plan_waypoints",
-           "quasi_stable_guess", "quasi_stable_guesses", "orbit_state", "SolveFailed"]
+           "quasi_stable_guess", "quasi_stable_guesses", "orbit_state", "orbit_phase", "orbit_guess", "SolveFailed"]
 
 
 
@@ -247,6 +247,11 @@ class _MinTimeOCP:
         self._end(ocp)
         return ocp
 
+    def build(self, duration: float | None = None) -> None:
+        """Build the IPOPT route of the free-time problem (or of a fixed ``duration``, s) now, instead of at
+        its first solve (a controller that must answer quickly builds its routes when it is made)."""
+        self._route(duration)
+
     def _route(self, duration: float | None):
         key = None if duration is None else round(float(duration), 9)
         if key not in self._routes:
@@ -406,7 +411,7 @@ class OrbitEntry(_MinTimeOCP):
         z0 = _reduced(start)
         centre = np.asarray(centre, float)
         if guess is None:
-            guess, phase = _orbit_guess(z0, centre, self)
+            guess, phase = orbit_guess(z0, centre, self)
         else:
             phase = guess.extra.get("phase", 0.0)
         plan = self._solve(z0, {"centre": centre}, guess, {"phase": phase}, duration=duration)
@@ -512,17 +517,23 @@ def _radius_map(params: RollbotParams) -> RadiusMap:
     return RadiusMap(params)
 
 
-def _orbit_guess(z0, centre, ocp: OrbitEntry) -> tuple[Plan, float]:
-    """Guess for an orbit entry: ramp the driving speed up to the orbit's speed and look where that lands."""
+def orbit_phase(position, centre, qs_reduced) -> float:
+    """The phase (rad) of the orbit point about ``centre`` (m) nearest ``position`` (m), for the quasi-stable
+    state ``qs_reduced`` (10,) that ``orbit_state`` turns."""
+    rel = np.asarray(position, float) - np.asarray(centre, float)
+    return math.atan2(rel[1], rel[0]) - math.atan2(qs_reduced[1], qs_reduced[0])
+
+
+def orbit_guess(z0, centre, ocp: OrbitEntry, hold: float = 1.0) -> tuple[Plan, float]:
+    """Guess for an orbit entry: ramp the driving speed up to the orbit's speed (4 rad/s^2), hold it ``hold``
+    seconds (a simulation of the model), and the orbit phase nearest where that ends (rad)."""
     level = ocp.params.replace(slope=0.0)
     accel = 4.0
-    T = ocp.omega0 / accel + 1.0
+    T = ocp.omega0 / accel + hold
     run = simulate(from_reduced(z0), T, params=level, speed=lambda t: min(ocp.omega0, accel * t), stop_on_event=False)
     z, u = _from_simulation(run, ocp.settings.N, T)
-    # phase: the orbit point whose position is nearest where the ramp ended
-    rel = run.position[:, -1] - centre
-    phase = math.atan2(rel[1], rel[0]) - math.atan2(ocp.qs_reduced[1], ocp.qs_reduced[0])
-    return Plan(np.linspace(0.0, T, ocp.settings.N + 1), z, u, T, "guess", True, 0, 0.0), phase
+    plan = Plan(np.linspace(0.0, T, ocp.settings.N + 1), z, u, T, "guess", True, 0, 0.0)
+    return plan, orbit_phase(run.position[:, -1], centre, ocp.qs_reduced)
 
 
 def plan_waypoints(start, stops, params: RollbotParams | None = None, settings: OCPSettings | None = None,

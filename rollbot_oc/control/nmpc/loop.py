@@ -14,7 +14,8 @@ from rollbot_oc.control.nmpc.gates import plan_gates
 from rollbot_oc.control.nmpc.reference import Reference
 from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.tracking import RTISolver, TrackingSolver
-from rollbot_oc.control.ocp import OCPSettings, OrbitEntry, Plan, RestToRest, SolveFailed, quasi_stable_guess
+from rollbot_oc.control.ocp import (OCPSettings, OrbitEntry, Plan, RestToRest, SolveFailed, orbit_guess, orbit_phase,
+                                    quasi_stable_guess)
 from rollbot_oc.dynamics import REDUCED, to_reduced
 from rollbot_oc.missions import PassMonitor, StopMonitor
 from rollbot_oc.params import RollbotParams
@@ -62,8 +63,12 @@ class NMPC(ControllerBase):
         self.estimator = TiltEstimator(self.params, dt, s.tilt_process_noise, s.gyro_sigma,
                                        s.tilt_model_error)
         # the legs' planner, built once (its floor tilt is set per plan from the estimate)
-        self._legs = _rest_to_rest(self.params.replace(slope=0.0), s.plan, tuple(s.constraints)) \
-            if mission.stops else None
+        level = self.params.replace(slope=0.0)
+        self._legs = _rest_to_rest(level, s.plan, tuple(s.constraints)) if mission.stops else None
+        if self._legs is not None:  # built now, not during the run
+            self._legs.build()
+        if mission.orbit is not None:  # the entry's route for its first duration (the others if ever needed)
+            self._entry(s.entry_times[0]).build(s.entry_times[0])
         self.map = None  # set with the plans (for centre-of-curvature plots)
         self.reference = None
         self.plan_time = 0.0
@@ -75,15 +80,14 @@ class NMPC(ControllerBase):
         """What to follow first, from the full state ``x0`` (11,); called by ``run_problem`` before the run.
 
         Stops: the quasi-stable guess of the first leg (a fraction of a second),
-        refined while the robot moves (see ``plan_handover``); every later leg
-        is planned during the one before.  Circles: the entry onto the orbit.  Gates: the
-        minimum-time plan through them (``nmpc.gates``), followed once its modelled compute time has passed.
-        ``plan_time`` is the computation before the first command, s.
-
-        Raises
-        ------
-        SolveFailed
-            If a circle's entry cannot be planned.
+        refined while the robot moves (see ``plan_handover``); the legs after
+        it are planned ahead (``legs_ahead``), one after the other.  Circles: a ramp up to the orbit's speed (a simulation
+        of the model), and the entry onto the orbit planned from where the
+        ramp will be ``entry_handover`` s later (``_advance_entry``).  Gates:
+        the minimum-time plan through them (``nmpc.gates``), followed once its
+        modelled compute time has passed.  ``plan_time`` is the computation
+        before the first command, s (the problems' routes are built with the
+        controller, before).
         """
         start = time.perf_counter()
         level = self.params.replace(slope=0.0)
@@ -99,22 +103,71 @@ class NMPC(ControllerBase):
             self._follow_gates(to_reduced(x0), 0.0)
             self.plan_time = time.perf_counter() - start
             return self.reference
-        # The minimum-time entry takes hundreds of IPOPT iterations; a fixed entry time a little
-        # above it, with the least effort, converges in a fraction of the time.
-        settings, orbit = self.settings.entry, self.mission.orbit
-        for duration in self.settings.entry_times:
-            intervals = int(round(duration / self.settings.h))
-            entry = _orbit_entry(orbit.radius, level, replace(settings, N=intervals), tuple(self.settings.constraints))
-            try:
-                plan = entry.solve(x0, orbit.centre, duration=duration)
-                break
-            except SolveFailed:
-                if duration == self.settings.entry_times[-1]:
-                    raise
-        self.reference = Reference([(plan, {})], {"qs": entry.qs_reduced, "centre": orbit.centre,
-                                                  "phase": plan.extra["phase"], "Omega": entry.quasi.Omega})
+        # a circle: up to the orbit's speed at once (a simulation of the model), then tracked onto the orbit;
+        # the entry, planned from where that ramp will be, takes over as the robot moves (``_advance_entry``)
+        s, orbit = self.settings, self.mission.orbit
+        entry = self._entry(s.entry_times[0])
+        guess, phase = orbit_guess(to_reduced(x0), orbit.centre, entry, hold=s.tilt_settle + 2 * s.entry_handover)
+        self.reference = Reference([(guess, {})], self._orbit(entry, phase))
+        self.segment_start, self._refine_at = 0.0, s.tilt_settle
         self.plan_time = time.perf_counter() - start
         return self.reference
+
+    # -- circles: onto the orbit ------------------------------------------------------------------
+    def _entry(self, duration: float) -> OrbitEntry:
+        """The entry problem onto the mission's orbit in ``duration`` s (least effort; ``entry_interval`` grid)."""
+        s = self.settings
+        intervals = max(2, int(round(duration / s.entry_interval)))
+        return _orbit_entry(self.mission.orbit.radius, self.params.replace(slope=0.0), replace(s.entry, N=intervals),
+                            tuple(s.constraints))
+
+    def _orbit(self, entry: OrbitEntry, phase: float) -> dict:
+        """The orbit a reference ends on, reached at ``phase`` (rad)."""
+        return {"qs": entry.qs_reduced, "centre": self.mission.orbit.centre, "phase": phase, "Omega": entry.quasi.Omega}
+
+    def _advance_entry(self, t_now: float):
+        """Plan the entry from the ramp ``tilt_settle`` s after the start, and follow it once it is ready and its
+        start has come (a late one is planned again from further along the ramp, while the ramp lasts)."""
+        if self._refine_at is not None and t_now >= self._refine_at - 1e-9:
+            self._refine_at = None
+            self._launch_entry(t_now)
+        pending = self._pending.get(0)
+        if pending is None or t_now < max(pending["ready"], pending["start"]) - 1e-9:
+            return
+        del self._pending[0]
+        if pending["plan"] is None:  # no entry: the NMPC tracks the orbit from the end of the ramp
+            return
+        if pending["ready"] > pending["start"] + 1e-9:  # planned again from here, starting from this plan
+            self.log["plan_late"] += 1
+            self._launch_entry(t_now, pending["plan"])
+            return
+        plan = pending["plan"]
+        self.reference = Reference([(plan, {})], self._orbit(self._entry(plan.T), plan.extra["phase"]))
+        self.segment_start = pending["start"]
+
+    def _launch_entry(self, t_now: float, late: Plan | None = None):
+        """Plan the entry onto the orbit from where the ramp followed now will be ``entry_handover`` s later, for
+        each of ``entry_times`` in turn until one converges (first, from a ``late`` entry's own duration and
+        solution); it may be used once its modelled compute time has passed.  Nothing is planned if the ramp
+        ends before then."""
+        s, centre = self.settings, self.mission.orbit.centre
+        ramp = self.reference.segments[0][0]
+        handover = t_now - self.segment_start + s.entry_handover
+        if handover >= ramp.T:
+            return
+        wall, z_start = time.perf_counter(), ramp.state(handover)
+
+        def attempt(duration, guess):
+            entry = self._entry(duration)
+            if guess is None:
+                guess = ramp.tail(handover, entry.settings.N)
+                guess.extra = {"phase": orbit_phase(guess.z[REDUCED.position, -1], centre, entry.qs_reduced)}
+            return entry.solve(z_start, centre, guess=guess, duration=duration)
+
+        tries = ([(late.T, late)] if late is not None else []) + [(duration, None) for duration in s.entry_times]
+        plan, iterations, _ = self._first_converged(attempt(*args) for args in tries)
+        ready = self._schedule(t_now, time.perf_counter() - wall, iterations * s.plan_iteration_time)
+        self._pending[0] = {"plan": plan, "start": self.segment_start + handover, "ready": ready}
 
     # -- gates: one plan through those left, then brought to rest ----------------------------------
     def _follow_gates(self, z, t_now: float) -> float:
@@ -231,27 +284,81 @@ class NMPC(ControllerBase):
             distance = float(np.linalg.norm(towards))
             if distance > s.stone_distance:
                 goals.append(goals[0] - towards * (1.0 - s.stone_distance / distance))
+
+        def attempt(goal):  # a refinement from its guess, or the fastest of several starts
+            return self._legs.solve(z_start, goal, guess=guess, tilt=tilt) if guess is not None \
+                else self._legs.fastest(z_start, goal, s.plan_starts, tilt=tilt, motor_scale=scale)
+
+        plan, iterations, tried = self._first_converged(attempt(goal) for goal in goals)
+        goal = goals[tried - 1]
+        if plan is not None and goal is not goals[0]:
+            plan.extra["stone"] = True  # from its end, the leg is planned again
+            self.log["stones"] += 1
+        guesses = tried * s.plan_guess_time if guess is None else 0.0
+        ready = self._schedule(t_now, time.perf_counter() - wall, iterations * s.plan_iteration_time + guesses)
+        self._pending[segment] = {"plan": plan, "start": t_start, "ready": ready}
+
+    def _first_converged(self, attempts):
+        """Run the plan ``attempts`` (an iterable of calls that solve, lazily) until one converges; each failure is
+        reported.  Returns the plan (None if every attempt failed), the IPOPT iterations of all of them and how
+        many were tried."""
         plan, iterations, tried = None, 0, 0
-        for goal in goals:
+        attempts = iter(attempts)
+        while plan is None:
             tried += 1
-            try:  # a refinement from its guess, or the fastest of several starts
-                plan = self._legs.solve(z_start, goal, guess=guess, tilt=tilt) if guess is not None \
-                    else self._legs.fastest(z_start, goal, s.plan_starts, tilt=tilt, motor_scale=scale)
-                iterations += plan.iterations
-                break
+            try:
+                plan = next(attempts)
+            except StopIteration:
+                return None, iterations, tried - 1
             except SolveFailed as exc:  # reported, never followed
                 self.log["statuses"].append(f"plan failed: {exc.status}")
                 self.log["plan_failures"] += 1
                 iterations += exc.plan.iterations if exc.plan is not None else 0
-        if plan is not None and goal is not goals[0]:
-            plan.extra["stone"] = True  # from its end, the leg is planned again
-            self.log["stones"] += 1
-        wall = time.perf_counter() - wall
+                continue
+            iterations += plan.iterations
+        return plan, iterations, tried
+
+    def _schedule(self, t_now: float, wall: float, modelled: float) -> float:
+        """When a plan asked for at ``t_now`` may be used (s): at the first solve instant after the one planner
+        has finished it, ``modelled`` s after it began (after the plans before it; with ``realtime``, the
+        measured ``wall`` s instead).  The wall-clock time is reported."""
+        s = self.settings
         self.log["plan_solve_times"].append(wall)
-        guesses = tried * s.plan_guess_time if guess is None else 0.0
-        compute = wall if s.realtime else iterations * s.plan_iteration_time + guesses
-        ready = t_now + s.h * math.ceil(compute / s.h - 1e-9)  # used at a solve instant
-        self._pending[segment] = {"plan": plan, "start": t_start, "ready": ready}
+        begin = max(t_now, self._planner_free)
+        ready = t_now + s.h * math.ceil((begin - t_now + (wall if s.realtime else modelled)) / s.h - 1e-9)
+        self._planner_free = ready
+        return ready
+
+    def _plan_ahead(self, t_now: float, plan):
+        """Plan the next leg not yet planned, up to ``legs_ahead`` beyond the current one, from the rest state
+        the leg before it is planned to end in (once that plan is ready, and not a stepping stone's; the
+        current leg's refinement counts once it is ready, before it takes over)."""
+        j, base = self.segment, plan
+        if j not in self._pending and plan.extra.get("provisional"):
+            return  # a guess not (yet) being refined: where it ends is not a plan
+        if j not in self._pending:
+            j += 1
+        while j in self._pending:
+            pending = self._pending[j]
+            if t_now < pending["ready"] - 1e-9 or pending["plan"] is None or pending["plan"].extra.get("stone"):
+                return
+            j, base = j + 1, pending["plan"]
+        if base.extra.get("stone") or base.extra.get("provisional"):
+            return
+        if j >= len(self.mission.stops) or j > self.segment + self.settings.legs_ahead \
+                or self.reference.segments[j] is not None:
+            return
+        end = base.z[:, -1].copy()
+        end[REDUCED.velocity] = 0.0
+        self._launch(j, t_now, None, end)
+
+    def _drop_plans(self, first: int, t_now: float):
+        """Forget the legs planned for segments ``first`` on (they chain from one another); a computation
+        still running for them is abandoned, so the planner is free from ``t_now``."""
+        for j in [j for j in self._pending if j >= first]:
+            del self._pending[j]
+        self._planner_free = min(self._planner_free,
+                                 max([t_now] + [pending["ready"] for pending in self._pending.values()]))
 
     def _fits(self, pending, z) -> bool:
         """Whether a leg planned ahead starts where the robot is: within ``replan_distance`` and with its
@@ -293,6 +400,7 @@ class NMPC(ControllerBase):
             self.reference = None
             self.segment, self.segment_start = 0, 0.0
             self._pending = {}  # legs being planned, by segment
+            self._planner_free = 0.0  # when the planner has finished the plans it was given, s
             self._refine_at = None  # when to refine the quasi-stable guess followed
             self._braking_since = None  # when the robot began to be brought to rest
             self._anchor = None
@@ -384,6 +492,8 @@ class NMPC(ControllerBase):
         bring it to rest and plan a new leg to the same stop from there (``_brake``)."""
         if self.reference is not None and self.mission.gates:
             self._advance_gates(t_now, z)
+        if self.reference is not None and self.mission.orbit is not None:
+            self._advance_entry(t_now)
         if self.reference is None or not self.mission.stops:
             return
         s, i = self.settings, self.segment
@@ -396,13 +506,8 @@ class NMPC(ControllerBase):
             self._take_pending(t_now)
         plan, info = self.reference.segments[i]
         local = t_now - self.segment_start
-        if (i + 1 < len(self.mission.stops) and self.reference.segments[i + 1] is None and i + 1 not in self._pending
-                and not plan.extra.get("provisional") and not plan.extra.get("stone") and self._braking_since is None
-                and i not in self._pending
-                and local >= s.plan_ahead * plan.T):
-            end = plan.z[:, -1].copy()
-            end[REDUCED.velocity] = 0.0
-            self._launch(i + 1, t_now, None, end)
+        if self._braking_since is None and local >= s.plan_ahead * plan.T and t_now >= s.tilt_settle - 1e-9:
+            self._plan_ahead(t_now, plan)  # (on the tilt estimated by then)
         if reached and local >= plan.T - 1e-9:
             ahead = self._pending.get(i + 1)
             if ahead is not None and t_now < ahead["ready"] - 1e-9:
@@ -417,7 +522,7 @@ class NMPC(ControllerBase):
             self.warm, self.current, self._monitor = None, None, None
             self._refine_at = self._braking_since = None
             if not (self._fits(self._pending.get(self.segment), z) and self._take_pending(t_now)):
-                self._pending.pop(self.segment, None)  # nothing (or nothing that fits) planned ahead: from here
+                self._drop_plans(self.segment, t_now)  # nothing (or nothing that fits) planned ahead: from here
                 self._brake(z, t_now, recovery=False)
             return
         at_rest = (self.params.R * float(np.linalg.norm(z[REDUCED.omega])) < s.recover_speed
@@ -464,8 +569,7 @@ class NMPC(ControllerBase):
         planned from rest, the fastest of ``plan_starts`` (``_advance_mission``; if that fails, the
         quasi-stable guess from where it is).  The stop's planned legs are dropped.  ``recovery``: counted
         in ``brakes`` (not for a leg begun at a stop the planned-ahead leg does not fit)."""
-        self._pending.pop(self.segment, None)
-        self._pending.pop(self.segment + 1, None)
+        self._drop_plans(self.segment, t_now)
         if self.reference.segments[self.segment] is None:  # a new stop: rest where it is until its leg
             rest = np.tile(np.asarray(z, float)[:, None], (1, 2))
             rest[REDUCED.velocity] = 0.0

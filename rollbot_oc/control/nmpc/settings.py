@@ -83,7 +83,12 @@ class NMPCSettings:
     N : int
         Shooting intervals of the horizon.
     h : float
-        Interval length and replanning period, s.
+        Interval length and replanning period, s.  Short enough that the
+        commands follow the bang-bang switches of a minimum-time plan's motor
+        acceleration: a robot that brakes late arrives swaying sideways, and
+        its motor cannot damp that sway at rest (the mode is uncontrollable
+        there, ``tests/test_stability.py``), so it fails the rest test for
+        seconds (``benchmarks/bench_nmpc_result.txt`` compares 0.1 s).
     substeps : int
         RK4 steps per interval in the prediction.
     solver : {"rti", "ipopt"}
@@ -169,8 +174,8 @@ class NMPCSettings:
         the robot where it arrived (damping its motion) instead of chasing the
         last centimetres.
     plan_handover : float
-        A leg planned from where the robot is (the first, or a replan) starts at
-        once on the quasi-stable guess (a full-model simulation); the
+        A leg planned from where the robot is (the first, or a replan) starts
+        at once on the quasi-stable guess (a full-model simulation); the
         minimum-time leg refined from it takes over this long after, from where
         the guess then is, s.
     tilt_settle : float
@@ -187,6 +192,10 @@ class NMPCSettings:
         their driving-speed and acceleration limits scaled by ``caution`` once
         more, down to ``caution_floor``: a robot that could not follow its plans
         gets gentler ones.
+    legs_ahead : int
+        How many legs beyond the current one may be planned ahead, one after
+        the other (a single planner: each plan starts when the one before it is
+        done), each from the rest state the leg before it is planned to end in.
     plan_starts : int
         A leg planned ahead is solved from this many quasi-stable guesses, and
         the fastest result is kept.
@@ -203,6 +212,13 @@ class NMPCSettings:
     entry_times : tuple of float
         Circles: durations tried, in order, for the planned entry onto the
         orbit (least effort in that time), s.
+    entry_interval : float
+        Circles: interval of the entry's grid, s.
+    entry_handover : float
+        Circles: the robot starts at once on a ramp up to the orbit's speed;
+        the entry is planned ``tilt_settle`` s after the start, from where the
+        ramp will be this long after that, and takes over there if it is ready
+        (else it is planned again from further along), s.
     max_solve_time : float or None
         A solve that takes longer counts as late and is not used; ``None``
         means the period ``h`` (real time).  A larger value studies the
@@ -235,9 +251,9 @@ class NMPCSettings:
         too loosely to pass every gate within 5 cm).
     """
 
-    N: int = 30
-    h: float = 0.1
-    substeps: int = 2
+    N: int = 60
+    h: float = 0.05
+    substeps: int = 1
     solver: str = "rti"
     waypoint_weights: "TrackingWeights" = None
     hold_weights: "TrackingWeights" = None
@@ -247,7 +263,7 @@ class NMPCSettings:
     constraints: tuple = ()
     normal_margin: float = 0.1
     friction_margin: float = 0.95
-    max_failures: int = 3
+    max_failures: int = 6
     fallback: str = "brake"
     pid_time: float = 2.0
     estimate_tilt: bool = True
@@ -271,11 +287,14 @@ class NMPCSettings:
     plan_ahead: float = 0.0
     plan_iteration_time: float = 0.015
     plan_starts: int = 3
+    legs_ahead: int = 2
     stone_distance: float = 0.6
     caution: float = 0.9
     caution_floor: float = 0.7
     plan_guess_time: float = 0.5
     entry_times: tuple = (5.0, 7.0, 10.0)
+    entry_interval: float = 0.1
+    entry_handover: float = 3.0
     max_solve_time: float | None = None
     realtime: bool = False
     rti_step_time: float = 0.01

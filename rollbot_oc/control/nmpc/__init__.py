@@ -5,24 +5,27 @@ Structure (do-mpc's separation: model, controller, simulator over one model):
 * **Plans** (``control.ocp``), computed as the robot moves: for stops, the
   first leg starts at once on its quasi-stable guess (a simulation of the
   model, a fraction of a second); once the tilt estimate has settled
-  (``tilt_settle``) a minimum-time leg is refined from where the guess will be
-  ``plan_handover`` later, and takes over there if it is ready by then (else
-  it is planned again from further along).  Every later leg is planned
-  during the one before (the fastest of ``plan_starts`` starts, from the rest
-  state the leg ends in, on the tilt estimated by then) and is used only once
-  its modelled compute time has passed; legs end balanced on the estimated
-  floor.
+  (``tilt_settle``) minimum-time legs are refined from where the guess will
+  be each of ``plan_handovers`` later, and the one ready in time that arrives
+  first takes over where it starts (else it is planned again from further
+  along).  The next ``legs_ahead`` legs are planned ahead, one after the
+  other by one modelled planner (each the fastest of ``plan_starts`` starts,
+  from the rest state the leg before ends in, on the tilt estimated by then),
+  and each is used only once its modelled compute time has passed; legs end
+  balanced on the estimated floor.
 * **Recovery**: a robot pushed off its plan is first brought to rest where
   it is (the tracking NMPC with ``brake_weights``: motion only), then gets a
-  new leg from there, as at the start.  For circles, before the run: an entry onto the
-  quasi-stable orbit of the target circle in a fixed time (5 s, else 7 or
-  10 s) with the least effort, then the orbit itself.  For gates (``gates``):
+  new leg from there, as at the start.  For circles: at once a ramp up to
+  the orbit's speed (a simulation of the model), and, planned from where the
+  ramp will be ``entry_handover`` later, an entry onto the quasi-stable orbit
+  of the target circle in a fixed time (5 s, else 7 or 10 s) with the least
+  effort, then the orbit itself.  For gates (``gates``):
   one minimum-time plan through every gate on ``rollbot_oc.ocp``, followed
   once its modelled compute time has passed, the position weighted more at
   each planned gate passage; after the last gate the motor's speed is
   ramped to zero; a missed gate is planned again from rest.
-* **Tracking NMPC**: every ``h = 0.1`` s it solves a multiple-shooting
-  problem over ``N = 30`` intervals (3 s, about half a revolution period and
+* **Tracking NMPC**: every ``h = 0.05`` s it solves a multiple-shooting
+  problem over ``N = 60`` intervals (3 s, about half a revolution period and
   half the 7 s recovery time) that keeps the predicted reduced state near the
   plan, with the motor's torque, speed and acceleration limits and the
   contact margins as constraints.  The first interval's motor acceleration

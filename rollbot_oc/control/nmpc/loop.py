@@ -80,7 +80,7 @@ class NMPC(ControllerBase):
         """What to follow first, from the full state ``x0`` (11,); called by ``run_problem`` before the run.
 
         Stops: the quasi-stable guess of the first leg (a fraction of a second),
-        refined while the robot moves (see ``plan_handover``); the legs after
+        refined while the robot moves (see ``plan_handovers``); the legs after
         it are planned ahead (``legs_ahead``), one after the other.  Circles: a ramp up to the orbit's speed (a simulation
         of the model), and the entry onto the orbit planned from where the
         ramp will be ``entry_handover`` s later (``_advance_entry``).  Gates:
@@ -261,14 +261,26 @@ class NMPC(ControllerBase):
         self._refine_at = t_now + s.tilt_settle
 
     def _refine(self, t_now: float):
-        """Plan the minimum-time leg from where the guess followed now will be ``plan_handover`` s later
-        (if the guess lasts that long); it takes over there if it is ready by then."""
+        """Plan the minimum-time leg from where the guess followed now will be each of ``plan_handovers`` s
+        later (those within the guess), one after the other; the one ready in time that arrives first takes
+        over where it starts (``_take_pending``)."""
         self._refine_at = None
         guess = self.reference.segments[self.segment][0]
-        handover = t_now - self.segment_start + self.settings.plan_handover
-        if handover < guess.T - self.settings.plan_handover:
+        best = None
+        for ahead in self.settings.plan_handovers:
+            handover = t_now - self.segment_start + ahead
+            if handover >= guess.T - ahead:
+                continue
             self._launch(self.segment, t_now, self.segment_start + handover, guess.state(handover),
                          guess.tail(handover, self.settings.plan.N))
+            candidate = self._pending.pop(self.segment)
+            if candidate["plan"] is None:
+                continue
+            key = (candidate["ready"] > candidate["start"] + 1e-9, candidate["start"] + candidate["plan"].T)
+            if best is None or key < best[0]:
+                best = (key, candidate)
+        if best is not None:
+            self._pending[self.segment] = best[1]
 
     def _launch(self, segment: int, t_now: float, t_start, z_start, guess=None):
         """Plan leg ``segment`` from ``z_start`` on the estimated floor; it may be used once its modelled

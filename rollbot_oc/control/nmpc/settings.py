@@ -173,11 +173,13 @@ class NMPCSettings:
         At the end of a leg within this distance of its stop (m), the NMPC holds
         the robot where it arrived (damping its motion) instead of chasing the
         last centimetres.
-    plan_handover : float
+    plan_handovers : tuple of float
         A leg planned from where the robot is (the first, or a replan) starts
-        at once on the quasi-stable guess (a full-model simulation); the
-        minimum-time leg refined from it takes over this long after, from where
-        the guess then is, s.
+        at once on the quasi-stable guess (a full-model simulation); minimum-time
+        legs are refined from where the guess will be each of these times
+        later, s, one after the other (a minimum-time leg has local optima,
+        and where it starts decides which one IPOPT finds); of those ready in
+        time, the one that arrives first takes over where it starts.
     tilt_settle : float
         The first leg's refinement is planned this long after the start, once
         the floor tilt estimate has settled (a plan on the level floor misses
@@ -282,7 +284,7 @@ class NMPCSettings:
     brake_wait: float = 4.0
     recover_speed: float = 0.02
     recover_drive: float = 0.3
-    plan_handover: float = 2.0
+    plan_handovers: tuple = (2.0,)
     tilt_settle: float = 0.3
     plan_ahead: float = 0.0
     plan_iteration_time: float = 0.015

@@ -12,7 +12,7 @@ from rollbot_oc.control.missions import Waypoints
 from rollbot_oc.control.nmpc import NMPC, NMPCSettings, RTISolver, TiltEstimator
 from rollbot_oc.control.ocp import RestToRest, SolveFailed
 from rollbot_oc.params import RollbotParams
-from rollbot_oc.problems import load_problem, run_problem
+from rollbot_oc.problems import load_problem, make_controller, run_problem
 
 PROBLEMS = Path(__file__).parent.parent / "problems"
 # The N-shape's minimum-time bound on its 1 deg slope (s): ``bounds.minimum_time_bound`` on the problem,
@@ -78,10 +78,17 @@ def test_model_error_of_ten_percent(scale):
     check_plant_limits(m)
 
 
-def test_the_tilt_estimate_finds_the_slope():
-    m = run_problem(load_problem(PROBLEMS / "circle_R035.toml").with_duration(30.0), "nmpc").metrics
+def test_the_tilt_estimate_finds_the_slope_and_the_entry_is_planned_while_moving():
+    problem = load_problem(PROBLEMS / "circle_R035.toml").with_duration(30.0)
+    nmpc = make_controller("nmpc", problem)
+    first = nmpc.prepare(problem.initial_state()).segments[0][0]
+    assert first.status == "guess" and first.u.max() > 0  # the ramp: nothing solved before the first command
+    m = run_problem(problem, nmpc).metrics
     true = math.sin(math.radians(1.0)) * np.array([math.cos(-math.pi / 4), math.sin(-math.pi / 4)])
     assert np.allclose(m["tilt_estimate"], true, atol=0.002)  # 0.1 deg
+    # the entry, planned once as the robot moved, ready in time and followed onto the circle
+    assert m["plan_solves"] == 1 and m["plan_late"] == 0 and m["plan_failures"] == 0
+    assert [p["status"] for p in m["plans"]] == ["Solve_Succeeded"] and m["reach_time"] is not None
 
 
 def test_failed_solves_fall_back_without_crashing(monkeypatch):

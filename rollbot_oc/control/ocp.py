@@ -186,10 +186,11 @@ class Plan:
         """The same trajectory on ``N`` equal intervals (states interpolated, accelerations at interval midpoints)."""
         return self.tail(0.0, N)
 
-    def tail(self, t0: float, N: int) -> "Plan":
-        """The rest of the trajectory from time ``t0`` (s) on, on ``N`` equal intervals, its time from 0."""
+    def tail(self, t0: float, N: int, duration: float | None = None) -> "Plan":
+        """The rest of the trajectory from time ``t0`` (s) on (at most ``duration`` s of it), on ``N`` equal
+        intervals, its time from 0."""
         t0 = min(max(float(t0), 0.0), self.T)
-        T = max(self.T - t0, 1e-3)
+        T = max(self.T - t0 if duration is None else min(float(duration), self.T - t0), 1e-3)
         t = np.linspace(0.0, T, N + 1)
         u = np.array([self.accel(t0 + tm) for tm in 0.5 * (t[1:] + t[:-1])])
         return Plan(t, self.state(t0 + t), u, T, self.status, self.success, self.iterations, self.solve_time,

@@ -107,7 +107,7 @@ class NMPC(ControllerBase):
         # the entry, planned from where that ramp will be, takes over as the robot moves (``_advance_entry``)
         s, orbit = self.settings, self.mission.orbit
         entry = self._entry(s.entry_times[0])
-        guess, phase = orbit_guess(to_reduced(x0), orbit.centre, entry, hold=s.tilt_settle + 2 * s.entry_handover)
+        guess, phase = orbit_guess(to_reduced(x0), orbit.centre, entry, hold=s.tilt_settle + 4 * s.entry_handover)
         self.reference = Reference([(guess, {})], self._orbit(entry, phase))
         self.segment_start, self._refine_at = 0.0, s.tilt_settle
         self.plan_time = time.perf_counter() - start
@@ -160,12 +160,12 @@ class NMPC(ControllerBase):
         def attempt(duration, guess):
             entry = self._entry(duration)
             if guess is None:
-                guess = ramp.tail(handover, entry.settings.N)
+                guess = ramp.tail(handover, entry.settings.N, duration)
                 guess.extra = {"phase": orbit_phase(guess.z[REDUCED.position, -1], centre, entry.qs_reduced)}
             return entry.solve(z_start, centre, guess=guess, duration=duration)
 
         tries = ([(late.T, late)] if late is not None else []) + [(duration, None) for duration in s.entry_times]
-        plan, iterations, _ = self._first_converged(attempt(*args) for args in tries)
+        plan, iterations, _ = self._first_converged([functools.partial(attempt, *args) for args in tries])
         ready = self._schedule(t_now, time.perf_counter() - wall, iterations * s.plan_iteration_time)
         self._pending[0] = {"plan": plan, "start": self.segment_start + handover, "ready": ready}
 
@@ -301,7 +301,7 @@ class NMPC(ControllerBase):
             return self._legs.solve(z_start, goal, guess=guess, tilt=tilt) if guess is not None \
                 else self._legs.fastest(z_start, goal, s.plan_starts, tilt=tilt, motor_scale=scale)
 
-        plan, iterations, tried = self._first_converged(attempt(goal) for goal in goals)
+        plan, iterations, tried = self._first_converged([functools.partial(attempt, goal) for goal in goals])
         goal = goals[tried - 1]
         if plan is not None and goal is not goals[0]:
             plan.extra["stone"] = True  # from its end, the leg is planned again
@@ -311,24 +311,21 @@ class NMPC(ControllerBase):
         self._pending[segment] = {"plan": plan, "start": t_start, "ready": ready}
 
     def _first_converged(self, attempts):
-        """Run the plan ``attempts`` (an iterable of calls that solve, lazily) until one converges; each failure is
-        reported.  Returns the plan (None if every attempt failed), the IPOPT iterations of all of them and how
-        many were tried."""
-        plan, iterations, tried = None, 0, 0
-        attempts = iter(attempts)
-        while plan is None:
+        """Call the plan ``attempts`` (functions of no arguments that solve) in turn until one converges; each
+        failure is reported.  Returns the plan (None if every attempt failed), the IPOPT iterations of all of
+        them and how many were tried."""
+        iterations, tried = 0, 0
+        for attempt in attempts:
             tried += 1
             try:
-                plan = next(attempts)
-            except StopIteration:
-                return None, iterations, tried - 1
+                plan = attempt()
             except SolveFailed as exc:  # reported, never followed
                 self.log["statuses"].append(f"plan failed: {exc.status}")
                 self.log["plan_failures"] += 1
                 iterations += exc.plan.iterations if exc.plan is not None else 0
                 continue
-            iterations += plan.iterations
-        return plan, iterations, tried
+            return plan, iterations + plan.iterations, tried
+        return None, iterations, tried
 
     def _schedule(self, t_now: float, wall: float, modelled: float) -> float:
         """When a plan asked for at ``t_now`` may be used (s): at the first solve instant after the one planner

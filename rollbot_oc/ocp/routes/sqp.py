@@ -288,26 +288,30 @@ class SQPRoute:
         return cache[names]
 
     def to_function(self) -> ca.Function:
-        """One full SQP step as a CasADi Function ``(w, lam_w, lam_g, par) -> (w, lam_w, lam_g)``.
+        """One full SQP step as a CasADi Function ``(w, lam_w, lam_g, par) -> (w, lam_w, lam_g, violation)``.
 
-        The QP solver is inside the Function, so the step can be generated as C.
+        As an iteration of ``iterate`` without line search: ``w`` clipped to its bounds, the QP there, the
+        full step, clipped again; ``violation`` is the largest violation of the QP's constraints and bounds
+        by its step (``_violation_of``: an active-set solver may stop on an infeasible QP).  The QP
+        solver is inside the Function and the linearisation is the structured one
+        (``StructuredLinearisation.symbolic``: the stage Functions mapped, not expanded), so the step can be
+        generated as compact C (a route built with ``compiled=False``).
         """
         tr = self.transcription
         n, m = tr.w.numel(), tr.g.numel()
         w, lw, lg, par = ca.MX.sym("w", n), ca.MX.sym("lam_w", n), ca.MX.sym("lam_g", m), ca.MX.sym("par",
                                                                                                    tr.par.numel())
-        J = ca.jacobian(tr.g, tr.w)
-        Jr = ca.jacobian(tr.residuals, tr.w)
-        H = ca.mtimes(Jr.T, Jr) + ca.hessian(tr.general, tr.w)[0] + ca.diag(self.linearisation.regularisation)
-        grad = ca.gradient(tr.general, tr.w) + ca.mtimes(Jr.T, tr.residuals)
-        lin = ca.Function("ocp_linearisation", [tr.w, tr.par], [ca.project(H, self.linearisation.H_sparsity), grad,
-                                                                 tr.g, ca.project(J, self.linearisation.J_sparsity)])
-        H, grad, g, J = lin(w, par)
         lbw, ubw = tr.bounds_symbolic(par)
-        sol = self.qp(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=lbw - w, ubx=ubw - w,
-                      lam_x0=lw, lam_a0=lg)
-        return ca.Function("ocp_sqp_step", [w, lw, lg, par], [w + sol["x"], sol["lam_x"], sol["lam_a"]],
-                           ["w", "lam_w", "lam_g", "par"], ["w_next", "lam_w_next", "lam_g_next"])
+        w0 = ca.fmin(ca.fmax(w, lbw), ubw)
+        H, grad, g, J, _f = self.linearisation.symbolic(w0, par)
+        args = dict(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=lbw - w0, ubx=ubw - w0)
+        sol = self.qp(**args, lam_x0=lw, lam_a0=lg)
+        d = sol["x"]
+        rows = ca.mtimes(J, d)
+        violation = ca.mmax(ca.vertcat(args["lba"] - rows, rows - args["uba"], args["lbx"] - d, d - args["ubx"], 0))
+        return ca.Function("ocp_sqp_step", [w, lw, lg, par],
+                           [ca.fmin(ca.fmax(w0 + d, lbw), ubw), sol["lam_x"], sol["lam_a"], violation],
+                           ["w", "lam_w", "lam_g", "par"], ["w_next", "lam_w_next", "lam_g_next", "violation"])
 
 
 class RTIRoute(SQPRoute):

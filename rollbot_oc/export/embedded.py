@@ -47,7 +47,7 @@ class EmbeddedBase(ControllerBase):
 
     @property
     def done(self) -> bool:
-        """True once the reference has ended and the robot has held at the last stop (status ``done``)."""
+        """True ``finish_hold`` seconds after the last stop was reached (status ``done``)."""
         return self._done
 
     def report(self) -> dict:
@@ -76,8 +76,9 @@ class EmbeddedController(EmbeddedBase):
 
     def __call__(self, obs: Observation) -> Command:
         meas = self.measurement(obs)
-        k = int(self.mem[self.step.memory["k"]][0])
-        ref = self.reference.window(k // self.step.every, self.step.N)
+        mem, layout = self.mem, self.step.memory
+        k, leg, leg_k = (int(mem[layout[name]][0]) for name in ("k", "segment", "segment_k"))
+        ref = self.reference.window(leg, (k - leg_k) // self.step.every, self.step.N)
         accel, mem, status = self._fun(self.mem, meas, ref)
         self.mem = mem.copy()
         accel, status = float(accel[0]), int(status[0])

@@ -47,6 +47,7 @@ from rollbot_oc.control.nmpc.estimation import TiltEstimator
 from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.tracking import RTISolver, tracking_problem
 from rollbot_oc.dynamics import NZ, OMEGA, POS, QUAT, REDUCED, THETA, THETA_DOT, motor_speed_clip, symbolic_model
+from rollbot_oc.missions.stops import StopRule
 from rollbot_oc.params import TILT, ParamView, RollbotParams
 from rollbot_oc.rotations import quat_multiply
 
@@ -93,8 +94,6 @@ class StepFunction:
         Intervals of the horizon, and control periods per interval.
     dt, h : float
         Control period and interval, s.
-    end_time : float
-        After this time the command is 0 (reference end and ``finish_hold``), s.
     """
 
     function: ca.Function
@@ -104,12 +103,17 @@ class StepFunction:
     every: int
     dt: float
     h: float
-    end_time: float
+
+    @property
+    def window_size(self) -> int:
+        """Entries of one reference window: states (10, N+1), accelerations (N,), the stop (2), the leg's
+        duration (s) and 1 if it is the last leg (``EmbeddedReference.window``)."""
+        return NZ * (self.N + 1) + self.N + 4
 
     @property
     def reference_size(self) -> int:
-        """Entries of ``ref``: states (10, N+1), accelerations (N,) and hold flags (N+1)."""
-        return NZ * (self.N + 1) + self.N + self.N + 1
+        """Entries of ``ref``: the window of the leg in progress, then that of the next leg from its start."""
+        return 2 * self.window_size
 
 
 def _placement(values: dict):
@@ -210,8 +214,9 @@ class _RTI:
                              .astype(int).tolist()]
         w0 = ca.if_else(warm, w, guess)
         zero_w, zero_g = ca.MX.zeros(n), ca.MX.zeros(m)
-        step = self.route.to_function()
-        w1, lam_w1, lam_g1, violation = step(w0, ca.if_else(warm, lam_w, zero_w), ca.if_else(warm, lam_g, zero_g), par)
+        step = self.route.to_function(relax=self.solver.relax)
+        w1, lam_w1, lam_g1, violation, _relaxed = step(w0, ca.if_else(warm, lam_w, zero_w),
+                                                       ca.if_else(warm, lam_g, zero_g), par)
         ok = ca.logic_and(violation <= QP_FEASIBILITY, _finite(w1))
         index = np.arange(n, dtype=float)
         shifted = w1[self.solver.shift(index).astype(int).tolist()]
@@ -221,7 +226,7 @@ class _RTI:
 
 
 def control_step(params: RollbotParams, settings: NMPCSettings | None = None, dt: float = 0.01,
-                 end_time: float = math.inf) -> StepFunction:
+                 rule: StopRule | None = None) -> StepFunction:
     """The control step Function (module doc) for the robot ``params`` believes in.
 
     Parameters
@@ -229,17 +234,17 @@ def control_step(params: RollbotParams, settings: NMPCSettings | None = None, dt
     params : RollbotParams
         The controller's model (its tilt is the estimator's prior).
     settings : NMPCSettings, optional
-        Horizon, weights, limits, estimator and fallback settings (the NMPC's).
+        Horizon, weights, limits, estimator, hold and fallback settings (the NMPC's).
     dt : float
         Control period, s.
-    end_time : float
-        Time after which the command is 0, s.
+    rule : StopRule, optional
+        When a stop counts as reached (the mission's ``stop_rule``; the default rule).
     """
-    return _control_step(params, settings or NMPCSettings(), float(dt), float(end_time))
+    return _control_step(params, settings or NMPCSettings(), float(dt), rule or StopRule())
 
 
 @functools.lru_cache(maxsize=4)
-def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, end_time: float) -> StepFunction:
+def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopRule) -> StepFunction:
     every = max(1, int(round(s.h / dt)))
     if abs(every * dt - s.h) > 1e-9:
         raise ValueError(f"NMPC h = {s.h} s must be a whole number of control periods dt = {dt} s")
@@ -248,11 +253,12 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, end_time: f
     predict = estimator.step.fun
     rti = _RTI(params, s)
     N, n, m = s.N, rti.n, rti.m
-    memory = Memory([("k", 1), ("prev_seen", 1), ("prev_z", NZ), ("tilt", 2), ("P", 4), ("hist", HISTORY),
-                     ("w", n), ("lam_w", n), ("lam_g", m), ("warm", 1), ("U", N), ("k_solved", 1),
-                     ("current", 1), ("failures", 1), ("ramp_t0", 1), ("ramp_speed", 1), ("brake_until", 1)])
-    mem, meas = ca.MX.sym("mem", memory.size), ca.MX.sym("meas", 12)
-    ref = ca.MX.sym("ref", NZ * (N + 1) + N + N + 1)
+    memory = Memory([("k", 1), ("segment", 1), ("segment_k", 1), ("prev_seen", 1), ("prev_z", NZ), ("tilt", 2),
+                     ("P", 4), ("hist", HISTORY), ("w", n), ("lam_w", n), ("lam_g", m), ("warm", 1), ("U", N),
+                     ("k_solved", 1), ("current", 1), ("failures", 1), ("ramp_t0", 1), ("ramp_speed", 1),
+                     ("brake_until", 1), ("since", 1), ("anchored", 1), ("anchor", 2), ("finished_at", 1)])
+    window = NZ * (N + 1) + N + 4
+    mem, meas, ref = ca.MX.sym("mem", memory.size), ca.MX.sym("meas", 12), ca.MX.sym("ref", 2 * window)
 
     def part(name):
         return mem[memory[name]]
@@ -271,21 +277,51 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, end_time: f
     tilt, P = ca.if_else(follows, tilt1, tilt), ca.if_else(follows, P1, P)
     p = ca.MX(ca.DM(params.vector()))
     p[TILT] = tilt
+    P_view = ParamView(p)
     # 2. delay compensation over the commands issued since the measurement
     delay = k - seen
     z = z_meas
     for j in range(HISTORY - 1):
         z = ca.if_else(j < delay, predict(z, _select(hist, delay - 1 - j), p)[0], z)
     z = ca.if_else(_finite(z), z, z_meas)  # never act on a broken prediction
-    # 3. one real-time iteration at a solve instant
+    # 3. the stop in progress (``StopMonitor`` on the measurement); left, at a solve instant, once reached
+    cur, nxt = ref[:window], ref[window:]
+    stop, T, last = cur[window - 4:window - 2], cur[window - 2], cur[window - 1]
+    centre_speed = P_view.R * ca.norm_2(x_meas[OMEGA][:2])
+    at_rest = ca.logic_and(centre_speed < rule.rest_speed, ca.fabs(x_meas[THETA_DOT]) < rule.rest_drive)
+    holds = ca.logic_and(ca.norm_2(x_meas[POS] - stop) <= rule.tolerance, at_rest)
+    since = ca.if_else(holds, ca.if_else(part("since") >= 0, part("since"), meas[0]), -1)
+    reached = ca.logic_and(holds, meas[0] - since >= rule.hold - 1e-9)
+    instant = ca.fmod(k, every) == 0
+    local = (k - part("segment_k")) * dt
+    leave = ca.logic_and(ca.logic_and(instant, reached), local >= T - 1e-9)
+    switch = ca.logic_and(leave, ca.logic_not(last))
+    finished_at = ca.if_else(ca.logic_and(ca.logic_and(leave, last), part("finished_at") < 0), t_now,
+                             part("finished_at"))
+    done = ca.logic_and(finished_at >= 0, t_now >= finished_at + s.finish_hold - 1e-9)
+    segment = part("segment") + switch
+    segment_k = ca.if_else(switch, k, part("segment_k"))
+    since = ca.if_else(switch, -1, since)
+    follow = ca.if_else(switch, nxt, cur)
+    T = ca.if_else(switch, nxt[window - 2], T)
+    stop = ca.if_else(switch, nxt[window - 4:window - 2], stop)
+    local = (k - segment_k) * dt
+    Zr = ca.reshape(follow[:NZ * (N + 1)], NZ, N + 1)
+    Ur = follow[NZ * (N + 1):NZ * (N + 1) + N].T
+    # past the leg's end near its stop: hold where the robot arrived (``NMPC._settle``), gently
+    ended = local >= T - 1e-9
+    was = ca.logic_and(part("anchored"), ca.logic_not(switch))
+    anchored = ca.logic_and(ended, ca.logic_or(was, ca.norm_2(z[REDUCED.position] - stop) <= s.hold_radius))
+    anchor = ca.if_else(was, part("anchor"), z[REDUCED.position])
+    Zr = ca.vertcat(ca.if_else(anchored, ca.repmat(anchor, 1, N + 1), Zr[REDUCED.position, :]),
+                    Zr[REDUCED.position.stop:, :])
+    # 4. one real-time iteration at a solve instant (or with no plan to follow)
     braking = t_now < part("brake_until")
-    done = t_now >= end_time - 1e-9
-    instant = ca.logic_or(ca.fmod(k, every) == 0, part("current") == 0)
-    solve = ca.logic_and(ca.logic_and(instant, ca.logic_not(braking)), ca.logic_not(done))
-    Zr = ca.reshape(ref[:NZ * (N + 1)], NZ, N + 1)
-    Ur = ref[NZ * (N + 1):NZ * (N + 1) + N].T
-    hold = ref[NZ * (N + 1) + N:].T
-    rti_args = [part("w"), part("lam_w"), part("lam_g"), part("warm"), z, Zr, Ur, hold, tilt]
+    current_in = ca.if_else(switch, 0, part("current"))
+    warm_in = ca.if_else(switch, 0, part("warm"))  # a new leg starts from its reference (as the NMPC's)
+    solve = ca.logic_and(ca.logic_and(ca.logic_or(instant, current_in == 0), ca.logic_not(braking)),
+                         ca.logic_not(done))
+    rti_args = [part("w"), part("lam_w"), part("lam_g"), warm_in, z, Zr, Ur, ca.repmat(anchored, 1, N + 1), tilt]
     rti_fun = rti.function()
     skip = ca.Function("rollbot_no_rti", rti_fun.mx_in(), [rti_fun.mx_in(0), rti_fun.mx_in(1), rti_fun.mx_in(2),
                                                             ca.MX.zeros(N), ca.MX(0)])
@@ -293,19 +329,18 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, end_time: f
     solved = ca.logic_and(solve, ok)
     failed = ca.logic_and(solve, ca.logic_not(ok))
     failures = ca.if_else(solved, 0, ca.if_else(failed, part("failures") + 1, part("failures")))
-    keep = ca.logic_and(part("current"), failures < s.max_failures)  # a failed solve: the previous plan
+    keep = ca.logic_and(current_in, failures < s.max_failures)  # a failed solve: the previous plan
     brake = ca.logic_and(failed, ca.logic_not(keep))
     speed0 = z[REDUCED.theta_dot]
     ramp_t0 = ca.if_else(brake, t_now, part("ramp_t0"))
     ramp_speed = ca.if_else(brake, speed0, part("ramp_speed"))
     brake_until = ca.if_else(brake, t_now + ca.fabs(speed0) / s.brake_accel + s.h, part("brake_until"))
-    current = ca.if_else(solved, 1, ca.if_else(brake, 0, part("current")))
-    warm = ca.if_else(solved, 1, ca.if_else(brake, 0, part("warm")))
+    current = ca.if_else(solved, 1, ca.if_else(brake, 0, current_in))
+    warm = ca.if_else(solved, 1, ca.if_else(brake, 0, warm_in))
     U = ca.if_else(solved, U1, part("U"))
     k_solved = ca.if_else(solved, k, part("k_solved"))
     failures = ca.if_else(brake, 0, failures)
-    # 4. the command: the plan's, or the brake's speed ramp; within the motor's limits
-    P_view = ParamView(p)
+    # 5. the command: the plan's, or the brake's speed ramp; within the motor's limits
     ramp = ca.sign(ramp_speed) * ca.fmax(0, ca.fabs(ramp_speed) - s.brake_accel * (t_now - ramp_t0))
     ramp_accel = ca.fmin(ca.fmax((ramp - z[REDUCED.theta_dot]) / dt, -P_view.max_accel), P_view.max_accel)
     braking_now = t_now < brake_until
@@ -317,19 +352,20 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, end_time: f
     accel = ca.if_else(done, 0, ca.if_else(_finite(accel), accel, 0))
     status = ca.if_else(done, 4, ca.if_else(braking_now, 3, ca.if_else(solved, 0, ca.if_else(failed, 2, 1))))
     # the memory of the next period
-    updates = {"k": k + 1, "prev_seen": seen, "prev_z": z_meas, "tilt": tilt, "P": ca.vec(P),
-               "hist": ca.vertcat(accel, hist[:HISTORY - 1]),
+    updates = {"k": k + 1, "segment": segment, "segment_k": segment_k, "prev_seen": seen, "prev_z": z_meas,
+               "tilt": tilt, "P": ca.vec(P), "hist": ca.vertcat(accel, hist[:HISTORY - 1]),
                "w": ca.if_else(solved, w1, ca.if_else(brake, ca.MX.zeros(n), part("w"))),
                "lam_w": ca.if_else(solved, lam_w1, part("lam_w")), "lam_g": ca.if_else(solved, lam_g1, part("lam_g")),
                "warm": warm, "U": U, "k_solved": k_solved, "current": current, "failures": failures,
-               "ramp_t0": ramp_t0, "ramp_speed": ramp_speed, "brake_until": brake_until}
+               "ramp_t0": ramp_t0, "ramp_speed": ramp_speed, "brake_until": brake_until, "since": since,
+               "anchored": ca.if_else(solve, anchored, was), "anchor": anchor, "finished_at": finished_at}
     mem_next = ca.vertcat(*[updates[name] for name in memory.slices])
     fun = ca.Function("rollbot_step", [mem, meas, ref], [accel, mem_next, status], ["mem", "meas", "ref"],
                       ["cmd", "mem_next", "status"])
     initial = np.zeros(memory.size)
-    initial[memory["prev_seen"]] = -2.0  # no previous measurement
+    for name, value in (("prev_seen", -2.0), ("brake_until", -1.0), ("since", -1.0), ("finished_at", -1.0)):
+        initial[memory[name]] = value  # none yet
     initial[memory["tilt"]] = estimator.p[TILT]
     estimator.reset()
     initial[memory["P"]] = estimator.P.ravel(order="F")
-    initial[memory["brake_until"]] = -1.0
-    return StepFunction(fun, memory, initial, N, every, dt, s.h, end_time)
+    return StepFunction(fun, memory, initial, N, every, dt, s.h)

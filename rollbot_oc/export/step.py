@@ -1,6 +1,6 @@
 """One control period of the embedded controller as one CasADi Function, the source of every use of it.
 
-``control_step(...)`` builds ``rollbot_step(mem, meas, ref) -> (cmd, mem_next, status)``:
+``control_step(...)`` builds ``rollbot_period(mem, meas, ref) -> (cmd, mem_next, status)``:
 
 * ``mem`` (``Memory``): everything the controller remembers between periods, one flat vector: the step
   counter, the previous measurement, the tilt estimate and its covariance, the last commands, the RTI
@@ -85,7 +85,7 @@ class StepFunction:
     Attributes
     ----------
     function : casadi.Function
-        ``rollbot_step(mem, meas, ref) -> (cmd, mem_next, status)`` (module doc).
+        ``rollbot_period(mem, meas, ref) -> (cmd, mem_next, status)`` (module doc).
     memory : Memory
         Layout of ``mem``.
     initial_memory : numpy.ndarray
@@ -360,7 +360,7 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
                "ramp_t0": ramp_t0, "ramp_speed": ramp_speed, "brake_until": brake_until, "since": since,
                "anchored": ca.if_else(solve, anchored, was), "anchor": anchor, "finished_at": finished_at}
     mem_next = ca.vertcat(*[updates[name] for name in memory.slices])
-    fun = ca.Function("rollbot_step", [mem, meas, ref], [accel, mem_next, status], ["mem", "meas", "ref"],
+    fun = ca.Function("rollbot_period", [mem, meas, ref], [accel, mem_next, status], ["mem", "meas", "ref"],
                       ["cmd", "mem_next", "status"])
     initial = np.zeros(memory.size)
     for name, value in (("prev_seen", -2.0), ("brake_until", -1.0), ("since", -1.0), ("finished_at", -1.0)):

@@ -53,9 +53,10 @@ class EmbeddedBase(ControllerBase):
     def report(self) -> dict:
         """Counts of every step status (``step.STATUS``) and the reference's legs."""
         counts = np.bincount(np.asarray(self.statuses, int), minlength=len(STATUS))
+        legs = self.reference.legs if self.reference is not None else []
         return {"solver": "embedded RTI (qrqp)", "statuses": {STATUS[i]: int(c) for i, c in enumerate(counts)},
-                "solves": int(counts[0] + counts[2]), "failed_solves": int(counts[2]),
-                "legs": self.reference.legs, "plan_duration": float(sum(leg["duration"] for leg in self.reference.legs))}
+                "solves": int(counts[0] + counts[2]), "failed_solves": int(counts[2]), "legs": legs,
+                "plan_duration": float(sum(leg["duration"] for leg in legs))}
 
     @staticmethod
     def measurement(obs: Observation) -> np.ndarray:

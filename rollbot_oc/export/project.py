@@ -37,7 +37,7 @@ from rollbot_oc.errors import ConfigError
 from rollbot_oc.export.embedded import EmbeddedController
 from rollbot_oc.export.reference import EmbeddedReference, plan_reference
 from rollbot_oc.export.step import StepFunction, control_step
-from rollbot_oc.outputs import atomic_write_text, to_json
+from rollbot_oc.outputs import OutputFolder, atomic_write_text, to_json
 
 __all__ = ["export_c", "ExportResult", "build", "HAND_WRITTEN", "LOG_NAME", "BUILD_TIMEOUT"]
 
@@ -180,7 +180,7 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     Parameters
     ----------
     out : str or Path
-        Output folder (created).
+        Output folder (created; ``outputs.OutputFolder``).
     problem : Problem
         A course of stops (its start, stops, stop rule and control period); the recorded run uses its
         plant, floor and sensor.
@@ -194,17 +194,16 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     Raises
     ------
     ConfigError
-        If the problem is not a course of stops or a leg cannot be planned.
+        If ``out`` cannot be a folder, the problem is not a course of stops or a leg cannot be planned.
     """
     from rollbot_oc.problems import run_problem
 
+    folder = OutputFolder(out)  # checked and created before anything is computed
     s = settings or NMPCSettings()
     controller, step, reference = embedded_controller(problem, params, s, record=True)
     run = run_problem(problem, controller, seed=seed, show_progress=False)
     log = np.column_stack([np.array(controller.measurements), np.array(controller.commands),
                            np.array(controller.statuses, float)])
-    folder = Path(out)
-    folder.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         gen = ca.CodeGenerator("rollbot_period.c", {"with_header": True, "casadi_int": "int"})
         gen.add(step.function)
@@ -227,7 +226,7 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     atomic_write_text(folder / "export.json", to_json({
         "problem": problem.name, "periods": int(log.shape[0]), "sizes": sizes, "legs": reference.legs,
         "controller": controller.report()["statuses"], "metrics": metrics}) + "\n")
-    return ExportResult(folder, step, reference, run.metrics, log, sizes)
+    return ExportResult(folder.path, step, reference, run.metrics, log, sizes)
 
 
 def build(folder, target: str | None = None, jobs: int = 1) -> subprocess.CompletedProcess:

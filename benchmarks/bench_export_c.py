@@ -41,8 +41,8 @@ def replay_times(folder: Path) -> dict:
     out = subprocess.run(["./replay", "replay_log.txt"], cwd=folder, capture_output=True, text=True, check=True).stdout
     found = {}
     for what in ("all periods", "solve instants"):
-        m = re.search(rf"step time {what} \((\d+)\): median (\S+) us, p95 (\S+) us, max (\S+) us", out)
-        found[what] = (int(m.group(1)), float(m.group(2)), float(m.group(3)), float(m.group(4)))
+        m = re.search(rf"step time {what} \((\d+)\): median (\S+) us, p95 (\S+) us, max (\S+) us, mean (\S+) us", out)
+        found[what] = (int(m.group(1)), float(m.group(2)), float(m.group(3)), float(m.group(4)), float(m.group(5)))
     found["diff"] = float(re.search(r"max \|diff\| = (\S+)", out).group(1))
     found["context"] = int(re.search(r"context: (\d+) bytes", out).group(1))
     return found

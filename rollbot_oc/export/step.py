@@ -189,6 +189,19 @@ class _RTI:
                                                                      "mission_weight")}
         self.mission_values = solver._mission_values
 
+    def _row_shift(self) -> np.ndarray:
+        """Rows of ``g`` moved on by one interval (as ``shift`` moves the decision vector): each stage's rows take
+        the next stage's, the initial state's rows and the last stage's stay."""
+        tr = self.tr
+        fixed = set(tr.rows_of("initial state").tolist())
+        order = np.arange(self.m)
+        for stage, following in zip(tr.stages[:-1], tr.stages[1:]):
+            rows = [r for r in range(stage.rows.start, stage.rows.stop) if r not in fixed]
+            later = list(range(following.rows.start, following.rows.stop))
+            if len(rows) == len(later):
+                order[rows] = later
+        return order
+
     def function(self) -> ca.Function:
         N, n, m = self.N, self.n, self.m
         w, lam_w, lam_g = ca.MX.sym("w", n), ca.MX.sym("lam_w", n), ca.MX.sym("lam_g", m)
@@ -219,7 +232,9 @@ class _RTI:
                                                        ca.if_else(warm, lam_g, zero_g), par)
         ok = ca.logic_and(violation <= QP_FEASIBILITY, _finite(w1))
         index = np.arange(n, dtype=float)
-        shifted = w1[self.solver.shift(index).astype(int).tolist()]
+        shift = self.solver.shift(index).astype(int).tolist()
+        shifted = w1[shift]
+        lam_w1, lam_g1 = lam_w1[shift], lam_g1[self._row_shift().tolist()]  # the active set moves on with it
         U = w1[self.solver.split(index)[1].astype(int).tolist()]
         return ca.Function("rollbot_rti", [w, lam_w, lam_g, warm, z0, Zr, Ur, hold, tilt],
                            [shifted, lam_w1, lam_g1, U, ok])

@@ -24,10 +24,13 @@ static int compare(const void* a, const void* b) {
 }
 
 static void summary(const char* what, double* t, long n) {
+    double sum = 0.0;
+    long i;
     if (n == 0) return;
+    for (i = 0; i < n; ++i) sum += t[i];
     qsort(t, (size_t)n, sizeof(double), compare);
-    printf("step time %s (%ld): median %.1f us, p95 %.1f us, max %.1f us\n", what, n, 1e6 * t[n / 2],
-           1e6 * t[(long)(0.95 * (n - 1))], 1e6 * t[n - 1]);
+    printf("step time %s (%ld): median %.1f us, p95 %.1f us, max %.1f us, mean %.1f us\n", what, n, 1e6 * t[n / 2],
+           1e6 * t[(long)(0.95 * (n - 1))], 1e6 * t[n - 1], 1e6 * sum / (double)n);
 }
 
 int main(int argc, char** argv) {

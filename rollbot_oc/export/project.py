@@ -44,6 +44,7 @@ __all__ = ["export_c", "ExportResult", "build", "HAND_WRITTEN", "LOG_NAME", "BUI
 HAND_WRITTEN = ("rollbot_controller.h", "rollbot_controller.c", "main.c", "Makefile")
 LOG_NAME = "replay_log.txt"
 BUILD_TIMEOUT = 900.0  # s, for make (the generated step takes about half a minute at -O2)
+RECORD_FACTOR, RECORD_MARGIN = 4.0, 60.0  # the recorded run lasts at most 4 x the planned legs + 60 s
 
 
 @dataclass
@@ -189,7 +190,9 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     settings : NMPCSettings, optional
         The NMPC's settings the step is built with.
     seed : int
-        Seed of the recorded run's sensor noise.
+        Seed of the recorded run's sensor noise.  The run ends when the controller is done, or after
+        ``RECORD_FACTOR`` times the planned legs' duration and ``RECORD_MARGIN`` seconds (within the
+        problem's duration).
 
     Raises
     ------
@@ -201,7 +204,9 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     folder = OutputFolder(out)  # checked and created before anything is computed
     s = settings or NMPCSettings()
     controller, step, reference = embedded_controller(problem, params, s, record=True)
-    run = run_problem(problem, controller, seed=seed, show_progress=False)
+    planned = float(np.sum(reference.durations))
+    run = run_problem(problem, controller, seed=seed, show_progress=False,
+                      duration=min(problem.duration, RECORD_MARGIN + RECORD_FACTOR * planned))
     log = np.column_stack([np.array(controller.measurements), np.array(controller.commands),
                            np.array(controller.statuses, float)])
     with tempfile.TemporaryDirectory() as tmp:

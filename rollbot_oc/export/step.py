@@ -3,13 +3,14 @@
 ``control_step(...)`` builds ``rollbot_period(mem, meas, ref) -> (cmd, mem_next, status)``:
 
 * ``mem`` (``Memory``): everything the controller remembers between periods, one flat vector: the step
-  counter, the previous measurement, the tilt estimate and its covariance, the last commands, the RTI
-  iterate and multipliers, the current plan of motor accelerations and the fallback's state;
+  counter, the leg in progress and the step it started on, the previous measurement, the tilt estimate and
+  its covariance, the last commands, the RTI iterate and multipliers, the current plan of motor
+  accelerations, the stop monitor, the hold and the fallback's state;
 * ``meas`` (12,): the measurement's time, s, and the measured full state (11,) (``Observation.t`` and
   ``Observation.state``);
-* ``ref`` (``reference_size``): the reference window of the current solve instant: the reduced states
-  (10, N+1) by column, the motor accelerations (N,) and a flag per node, 1 where the robot holds at a
-  stop (``EmbeddedReference.window``).
+* ``ref`` (``reference_size``): two reference windows (``EmbeddedReference.window``): the leg in progress
+  from the current solve instant, and the next leg from its start; each the reduced states (10, N+1) by
+  column, the motor accelerations (N,), the leg's stop (2), its duration (s) and 1 if it is the last leg.
 
 What it does, in order, as the NMPC's loop (``control.nmpc.loop``) does for a course of stops:
 
@@ -17,17 +18,22 @@ What it does, in order, as the NMPC's loop (``control.nmpc.loop``) does for a co
    symbolically with the same one-step model and noise settings) when the measurement follows the
    previous one;
 2. delay compensation: the measurement predicted forward over the commands issued since it was taken
-   (up to ``history - 1`` periods);
-3. at a solve instant (every ``h``; or when there is no plan): one real-time iteration of the NMPC's
+   (up to ``HISTORY - 1`` periods);
+3. the stop in progress watched on the measurement (``missions.stops.StopMonitor``'s rule); at a solve
+   instant after the leg's planned end, once the stop is reached, the next leg starts (cold: from its
+   reference, as the NMPC's legs do), or after the last stop the run ends ``finish_hold`` later; past a
+   leg's end within ``hold_radius`` of its stop the robot is held where it arrived with the hold weights
+   (``NMPC._settle``);
+4. at a solve instant (every ``h``; or when there is no plan): one real-time iteration of the NMPC's
    tracking problem (``control.nmpc.tracking.tracking_problem``, the robot's limits of
-   ``ocp.constraints.robot_limits`` in it): the structured linearisation and the QP by ``qrqp``
-   (``ocp.routes.sqp.SQPRoute.to_function``), its solution shifted for the next warm start;
-4. the command: the plan's acceleration for the current interval, clipped to the motor's speed,
+   ``ocp.constraints.robot_limits`` in it): the structured linearisation and the QP by ``qrqp``, solved
+   once more without the relaxable constraints when it has no solution (``ocp.routes.sqp.SQPRoute.
+   to_function``); the solution and its multipliers shifted for the next warm start;
+5. the command: the plan's acceleration for the current interval, clipped to the motor's speed,
    acceleration and torque limits (``dynamics.motor_speed_clip`` and the model's ``accel_bounds``);
-5. fallback: a QP whose step violates its constraints (or is not finite) keeps the previous plan for up
+6. fallback: a QP whose step violates its constraints (or is not finite) keeps the previous plan for up
    to ``max_failures - 1`` solves; then the motor's speed is ramped to zero at ``brake_accel`` for
-   ``|speed| / brake_accel + h`` seconds and the next solve starts cold.  After the reference's end and
-   ``finish_hold`` the command is 0.
+   ``|speed| / brake_accel + h`` seconds and the next solve starts cold.  Once done the command is 0.
 
 ``status`` says which: ``STATUS`` names the codes.  The Python embedded controller
 (``export.embedded``), the C export (``export.project``) and the closed loop through C

@@ -22,8 +22,8 @@ What it does, in order, as the NMPC's loop (``control.nmpc.loop``) does for a co
 3. the stop in progress watched on the measurement (``missions.stops.StopMonitor``'s rule); at a solve
    instant after the leg's planned end, once the stop is reached, the next leg starts (cold: from its
    reference, as the NMPC's legs do), or after the last stop the run ends ``finish_hold`` later; past a
-   leg's end within ``hold_radius`` of its stop the robot is held where it arrived with the hold weights
-   (``NMPC._settle``);
+   leg's end within the stop's tolerance (at least ``hold_radius``) the robot is held where it arrived with
+   the hold weights (``NMPC._settle``);
 4. at a solve instant (every ``h``; or when there is no plan): one real-time iteration of the NMPC's
    tracking problem (``control.nmpc.tracking.tracking_problem``, the robot's limits of
    ``ocp.constraints.robot_limits`` in it): the structured linearisation and the QP by ``qrqp``, solved
@@ -329,10 +329,13 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     local = (k - segment_k) * dt
     Zr = ca.reshape(follow[:NZ * (N + 1)], NZ, N + 1)
     Ur = follow[NZ * (N + 1):NZ * (N + 1) + N].T
-    # past the leg's end near its stop: hold where the robot arrived (``NMPC._settle``), gently
+    # past the leg's end near its stop: hold where the robot arrived (``NMPC._settle``), gently; near is within
+    # the stop's tolerance (the NMPC's smaller ``hold_radius`` leaves a robot further off to a new leg, which
+    # this controller cannot plan: chasing the last centimetres at rest keeps its motor from settling)
+    hold_radius = max(s.hold_radius, rule.tolerance)
     ended = local >= T - 1e-9
     was = ca.logic_and(part("anchored"), ca.logic_not(switch))
-    anchored = ca.logic_and(ended, ca.logic_or(was, ca.norm_2(z[REDUCED.position] - stop) <= s.hold_radius))
+    anchored = ca.logic_and(ended, ca.logic_or(was, ca.norm_2(z[REDUCED.position] - stop) <= hold_radius))
     anchor = ca.if_else(was, part("anchor"), z[REDUCED.position])
     Zr = ca.vertcat(ca.if_else(anchored, ca.repmat(anchor, 1, N + 1), Zr[REDUCED.position, :]),
                     Zr[REDUCED.position.stop:, :])

@@ -284,7 +284,7 @@ def _cmd_export_c(args) -> int:
 
     out = output_folder(args.out)
     problem = load_scenario(args.problem, base=load_params(args.params))
-    result = export_c(out.path, problem, seed=args.seed)  # the controller believes in the problem's robot
+    result = export_c(out.path, problem, seed=args.seed, show_progress=_show_progress(args))  # the problem's robot
     m = result.metrics
     data = {"folder": str(result.folder), "problem": problem.name, "periods": int(result.log.shape[0]),
             "sizes": result.sizes, "completed": m["completed"], "completion_time": m["completion_time"],

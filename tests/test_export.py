@@ -42,7 +42,7 @@ def test_export_builds_replays_the_whole_n_shape_and_closes_the_loop_through_c(t
     result = export_c(tmp_path / "rollbot_c", load_bundled("n_shape"))
     folder = result.folder
     for name in ("rollbot_period.c", "rollbot_period.h", "rollbot_config.h", "rollbot_data.c", "rollbot_controller.h",
-                 "rollbot_controller.c", "main.c", "Makefile", "replay_log.txt", "export.json"):
+                 "rollbot_controller.c", "main.c", "Makefile", "README.md", "replay_log.txt", "export.json"):
         assert (folder / name).is_file(), name
     source = (folder / "rollbot_period.c").read_text()
     assert "malloc" not in source and "calloc" not in source  # no heap in the step

@@ -12,6 +12,7 @@ replay log, and writes into the folder ``out``:
   ``rollbot_set_reference``, ``rollbot_step``; written by hand, in ``rollbot_oc/export/c``);
 * ``main.c`` and ``replay_log.txt``: the replay of the recorded run (measurements, and the Python
   controller's commands and statuses);
+* ``README.md``: how to build, check and call it;
 * ``Makefile``: ``make`` builds ``replay`` and ``librollbot_controller.so``, ``make check`` replays the
   log and fails if a command differs by more than 1e-9 rad/s^2 or a status differs;
 * ``export.json``: what was exported (sizes in bytes, the legs, the recorded run's metrics).
@@ -41,7 +42,7 @@ from rollbot_oc.outputs import OutputFolder, atomic_write_text, to_json
 
 __all__ = ["export_c", "ExportResult", "build", "HAND_WRITTEN", "LOG_NAME", "BUILD_TIMEOUT"]
 
-HAND_WRITTEN = ("rollbot_controller.h", "rollbot_controller.c", "main.c", "Makefile")
+HAND_WRITTEN = ("rollbot_controller.h", "rollbot_controller.c", "main.c", "Makefile", "README.md")
 LOG_NAME = "replay_log.txt"
 BUILD_TIMEOUT = 900.0  # s, for make (the generated step takes about half a minute at -O2)
 RECORD_FACTOR, RECORD_MARGIN = 4.0, 60.0  # the recorded run lasts at most 4 x the planned legs + 60 s
@@ -175,7 +176,8 @@ def _log_text(log: np.ndarray) -> str:
     return "".join(" ".join(repr(float(v)) for v in row[:13]) + f" {int(row[13])}\n" for row in log)
 
 
-def export_c(out, problem, params=None, settings: NMPCSettings | None = None, seed: int = 0) -> ExportResult:
+def export_c(out, problem, params=None, settings: NMPCSettings | None = None, seed: int = 0,
+             show_progress: bool | None = False) -> ExportResult:
     """Export the embedded controller of ``problem`` as a C project in the folder ``out`` (module doc).
 
     Parameters
@@ -193,6 +195,8 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
         Seed of the recorded run's sensor noise.  The run ends when the controller is done, or after
         ``RECORD_FACTOR`` times the planned legs' duration and ``RECORD_MARGIN`` seconds (within the
         problem's duration).
+    show_progress : bool or None
+        Progress of the recorded run on stderr (as for ``problems.run_problem``).
 
     Raises
     ------
@@ -205,7 +209,7 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     s = settings or NMPCSettings()
     controller, step, reference = embedded_controller(problem, params, s, record=True)
     planned = float(np.sum(reference.durations))
-    run = run_problem(problem, controller, seed=seed, show_progress=False,
+    run = run_problem(problem, controller, seed=seed, show_progress=show_progress,
                       duration=min(problem.duration, RECORD_MARGIN + RECORD_FACTOR * planned))
     log = np.column_stack([np.array(controller.measurements), np.array(controller.commands),
                            np.array(controller.statuses, float)])

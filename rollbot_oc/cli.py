@@ -37,7 +37,7 @@ from contextlib import contextmanager
 
 from rollbot_oc import __version__
 from rollbot_oc.errors import ConfigError, NumericalFailure, interruptible
-from rollbot_oc.outputs import output_folder, to_json, write_json
+from rollbot_oc.outputs import output_folder, to_json, user_path, write_json
 from rollbot_oc.params import load_params
 
 __all__ = ["main", "build_parser", "EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_INTERNAL", "EXIT_INTERRUPTED"]
@@ -262,13 +262,69 @@ def _cmd_run(args) -> int:
             write_json(out / f"{problem.name}.json", metrics)
         _emit(args, metrics, lambda: open_loop_text(metrics["runs"], problem.name))
     else:
-        run = run_problem(problem, args.controller, seed=args.seed, show_progress=_show_progress(args),
+        controller = args.controller
+        if controller == "embedded":
+            from rollbot_oc.export.project import embedded_controller
+
+            controller = embedded_controller(problem)[0]
+        elif controller == "c":
+            controller = _c_controller(args, problem)
+        run = run_problem(problem, controller, seed=args.seed, show_progress=_show_progress(args),
                           **(_nmpc_options(args) if args.controller == "nmpc" else {}))
         metrics = run.metrics
         if out:
             _write_run(run, out)
         _emit(args, metrics, lambda: run_text(run))
     return EXIT_OK if metrics.get("completed") else _failed(f"{problem.name}: the run did not complete")
+
+
+def _cmd_export_c(args) -> int:
+    from rollbot_oc.export.project import export_c
+    from rollbot_oc.scenarios import load_scenario
+
+    out = output_folder(args.out)
+    problem = load_scenario(args.problem, base=load_params(args.params))
+    result = export_c(out.path, problem, seed=args.seed, show_progress=_show_progress(args))  # the problem's robot
+    m = result.metrics
+    data = {"folder": str(result.folder), "problem": problem.name, "periods": int(result.log.shape[0]),
+            "sizes": result.sizes, "completed": m["completed"], "completion_time": m["completion_time"],
+            "stop_errors": m["stop_errors"]}
+
+    def text() -> str:
+        worst = f", worst stop error {100 * max(m['stop_errors']):.1f} cm" if m["stop_errors"] else ""
+        run = f"completed in {m['completion_time']:.1f} s" if m["completed"] else "did not complete"
+        return "\n".join([f"{problem.name}: exported the controller to {result.folder} (its recorded run {run}{worst})",
+                          f"  periods recorded: {data['periods']}",
+                          f"  memory: {result.sizes['memory_bytes']} bytes, work arrays: {result.sizes['work_bytes']} "
+                          "bytes",
+                          f"  build and check: make -C {result.folder} check"])
+
+    _emit(args, data, text)
+    return EXIT_OK if m["completed"] else _failed(f"{problem.name}: the recorded run did not complete")
+
+
+def _c_controller(args, problem):
+    """The exported C controller of ``--c-project`` for ``run --controller c`` (built there if need be)."""
+    from rollbot_oc.export.library import LIBRARY, CController
+    from rollbot_oc.export.project import build, read_export
+
+    if not args.c_project:
+        raise ConfigError("--controller c needs --c-project DIR (a folder written by rollbot-oc export-c)")
+    folder = user_path(args.c_project, "--c-project")
+    try:
+        exported = read_export(folder)
+    except (OSError, ValueError):
+        raise ConfigError(f"--c-project {folder}: not a folder written by rollbot-oc export-c "
+                          "(no readable export.json)") from None
+    if exported.get("problem") != problem.name:
+        raise ConfigError(f"--c-project {folder}: exported for the problem {exported.get('problem')!r}, not "
+                          f"{problem.name!r} (the course is compiled in)")
+    if not (folder / LIBRARY).is_file():
+        done = build(folder, LIBRARY)
+        if done.returncode != 0:
+            lines = (done.stderr or done.stdout).strip().splitlines()
+            raise ConfigError(f"--c-project {folder}: make failed" + (f": {lines[-1]}" if lines else ""))
+    return CController(folder)
 
 
 def _cmd_compare(args) -> int:
@@ -423,11 +479,27 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("run", help="run a scenario (file or bundled name) under a controller and print its metrics")
     _add_scenario(p)
-    p.add_argument("--controller", choices=("pid", "nmpc"), default="pid",
-                   help="pid: the paper's quasi-stable baseline; nmpc: nonlinear MPC (default pid)")
+    p.add_argument("--controller", choices=("pid", "nmpc", "embedded", "c"), default="pid",
+                   help="pid: the paper's quasi-stable baseline; nmpc: nonlinear MPC; embedded: the exported "
+                   "controller (legs planned before the run, one RTI per interval) in Python; c: the same through "
+                   "the C library of --c-project (default pid)")
+    p.add_argument("--c-project", metavar="DIR", help="--controller c: a folder written by rollbot-oc export-c for "
+                   "this problem (built with make if its library is missing)")
     p.add_argument("--out", metavar="DIR", help="write the trajectory (.npz), metrics (.json) and plots (PNG) here")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON (SI units)")
     p.set_defaults(run=_cmd_run)
+
+    p = command("export-c", help="the controller on the robot: export the estimator and the NMPC step of a course "
+                "of stops as a standalone C99 project (make, make check)")
+    p.add_argument("--out", metavar="DIR", required=True, help="the C project's folder (created)")
+    p.add_argument("--problem", metavar="FILE", default="n_shape", help="scenario file or bundled name of a course "
+                   "of stops (default n_shape): its legs are planned now and compiled in, its run recorded for "
+                   "make check")
+    _add_params(p)
+    p.add_argument("--seed", type=_seed, default=0, metavar="N", help=f"seed of the recorded run's sensor noise, in "
+                   f"[0, {MAX_SEED}] (default 0)")
+    p.add_argument("--json", action="store_true", help="print what was exported as JSON (sizes in bytes)")
+    p.set_defaults(run=_cmd_export_c)
 
     p = command("compare", help="run the PID baseline and the NMPC on one problem and compare them")
     _add_scenario(p)

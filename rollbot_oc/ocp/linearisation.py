@@ -46,6 +46,7 @@ class _Group:
             derivatives = compiled(derivatives)
         count = len(stages)
         shared = [1, 2, 3]  # v, p and q are the same for every stage; y, sq and hs are per stage
+        self.derivatives, self.shared = derivatives, shared
         self.fast = FastFunction(derivatives.map(f"{derivatives.name()}_{count}", "serial", count, shared, []))
         self.values = FastFunction(fun.map(f"{fun.name()}_{count}", "serial", count, shared, []))
         self.columns = np.array([np.concatenate([st.columns, global_columns]) for st in stages])  # (count, nz)
@@ -62,6 +63,18 @@ class _Group:
         self.H_rows = self.columns[:, np.asarray(hr, int)].ravel()
         self.H_cols = self.columns[:, np.asarray(hc, int)].ravel()
         self.grad_cols = self.columns.ravel()
+
+    def mapped_without_empty(self, keep: list) -> ca.Function:
+        """The stage derivatives mapped over the group's stages with only the inputs ``keep`` (the others
+        are empty: a mapped empty input generates C that does not compile cleanly)."""
+        d = self.derivatives
+        if d.is_a("external"):
+            raise ValueError("StructuredLinearisation.symbolic needs uncompiled stage Functions (compiled=False)")
+        syms = [ca.SX.sym(d.name_in(i), d.sparsity_in(i)) for i in range(d.n_in())]
+        inner = ca.Function(f"{d.name()}_used", [syms[i] for i in keep], d(*syms), [d.name_in(i) for i in keep],
+                            d.name_out())
+        shared = [keep.index(i) for i in self.shared if i in keep]
+        return inner.map(f"{d.name()}_{len(self.nodes)}", "serial", len(self.nodes), shared, [])
 
     def evaluate(self, w, v, p, q, SQ):
         """``(c, J values, grad values, H values, f values)`` of every stage of the group; ``SQ`` the
@@ -155,6 +168,42 @@ class StructuredLinearisation:
         H = ca.DM(self.H_sparsity, upper[self.H_full_map])
         return H, grad, g, J, f
 
+    def symbolic(self, w: ca.MX, par: ca.MX):
+        """``(H, grad, g, J, f)`` as CasADi MX expressions of symbols ``w`` and ``par``, for code generation.
+
+        The same stage Functions, mapped over their stages (a loop in generated C, not one copy of the
+        code per stage), and the same index maps as ``__call__``: the assembly is a permutation of the
+        stages' nonzeros (``J``, ``g``) and sparse sums of them (``grad``, ``H``).  Needs stage Functions
+        that are not compiled libraries (``compiled=False``): CasADi generates C only from its own.
+        """
+        tr = self.transcription
+        L = tr.layout
+        p = par[L.parameters["p"]]
+        q = ca.vertcat(*[par[L.parameters[name]] for name in tr.ocp.parameters]) if tr.ocp.parameters \
+            else ca.MX(0, 1)
+        SQ = ca.reshape(par[L.stage_block], L.n_stage, L.intervals + 1)
+        v = w[self._v.tolist()] if self._v.size else ca.MX(0, 1)
+        rows, cs, Js, grads, Hs, f = [], [], [], [], [], 0
+        for group in self.groups:
+            count, ny = group.y_columns.shape
+            Y = ca.reshape(w[group.y_columns.ravel().tolist()], ny, count)
+            hs = ca.DM(group.hs).T
+            args = [Y, v, p, q, SQ[:, group.nodes.tolist()], hs]
+            keep = [i for i, a in enumerate(args) if a.numel()]  # generated C copies no empty inputs
+            c, J, grad, H, fs = group.mapped_without_empty(keep)(*[args[i] for i in keep])
+            rows.append(group.rows)
+            cs.append(ca.vec(c))
+            Js.append(J.nz[:] if J.nnz() else ca.MX(0, 1))
+            grads.append(ca.vec(grad))
+            Hs.append(H.nz[:] if H.nnz() else ca.MX(0, 1))
+            f += ca.sum2(fs)
+        g = ca.vertcat(*cs)[np.argsort(np.concatenate(rows)).tolist()]
+        J = ca.MX(self.J_sparsity, ca.vertcat(*Js)[self.J_order.tolist()])
+        grad = ca.mtimes(_summation(self.grad_cols, self.n), ca.vertcat(*grads))
+        upper = ca.mtimes(_summation(self.H_index, self.H_upper.nnz()), ca.vertcat(*Hs, ca.DM(self.regularisation)))
+        H = ca.MX(self.H_sparsity, upper[self.H_full_map.tolist()])
+        return H, grad, g, J, f
+
     def cost_and_constraints(self, w, par):
         """``(f, g)`` at ``w`` without derivatives."""
         w = np.asarray(w, float)
@@ -167,3 +216,11 @@ class StructuredLinearisation:
             g[group.rows] = c
             f += float(np.sum(l)) + 0.5 * float(np.sum(np.square(r)))
         return f, g
+
+
+def _summation(targets: np.ndarray, n: int) -> ca.DM:
+    """The sparse matrix (n, len(targets)) of ones that sums entry ``i`` into row ``targets[i]``
+    (``numpy.bincount`` with weights, as a product a code generator can write)."""
+    targets = np.asarray(targets, int)
+    columns = np.arange(targets.size)
+    return ca.DM(ca.Sparsity.triplet(n, targets.size, targets.tolist(), columns.tolist()), 1.0)

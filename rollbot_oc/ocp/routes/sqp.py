@@ -287,27 +287,58 @@ class SQPRoute:
                             np.concatenate([tr.columns_of(name) for name in names]).astype(int))
         return cache[names]
 
-    def to_function(self) -> ca.Function:
-        """One full SQP step as a CasADi Function ``(w, lam_w, lam_g, par) -> (w, lam_w, lam_g)``.
+    def to_function(self, relax=()) -> ca.Function:
+        """One full SQP step as a CasADi Function ``(w, lam_w, lam_g, par) -> (w, lam_w, lam_g, violation,
+        relaxed)``.
 
-        The QP solver is inside the Function, so the step can be generated as C.
+        As an iteration of ``iterate`` without line search: ``w`` clipped to its bounds, the QP there
+        (warm-started from ``lam_w, lam_g``), the full step, clipped again; ``violation`` is the largest
+        violation of the QP's constraints and bounds by its step (``_violation_of``: an active-set solver
+        may stop on an infeasible QP).  If that exceeds ``qp_feasibility`` and ``relax`` names
+        constraints, the QP is solved once more, cold, without them (``relaxed`` is then 1, and
+        ``violation`` that of the relaxed QP), as ``_qp_step`` does.  The QP solver is inside the Function
+        and the linearisation is the structured one (``StructuredLinearisation.symbolic``: the stage
+        Functions mapped, not expanded), so the step can be generated as compact C (a route built with
+        ``compiled=False``).
         """
         tr = self.transcription
         n, m = tr.w.numel(), tr.g.numel()
         w, lw, lg, par = ca.MX.sym("w", n), ca.MX.sym("lam_w", n), ca.MX.sym("lam_g", m), ca.MX.sym("par",
                                                                                                    tr.par.numel())
-        J = ca.jacobian(tr.g, tr.w)
-        Jr = ca.jacobian(tr.residuals, tr.w)
-        H = ca.mtimes(Jr.T, Jr) + ca.hessian(tr.general, tr.w)[0] + ca.diag(self.linearisation.regularisation)
-        grad = ca.gradient(tr.general, tr.w) + ca.mtimes(Jr.T, tr.residuals)
-        lin = ca.Function("ocp_linearisation", [tr.w, tr.par], [ca.project(H, self.linearisation.H_sparsity), grad,
-                                                                 tr.g, ca.project(J, self.linearisation.J_sparsity)])
-        H, grad, g, J = lin(w, par)
         lbw, ubw = tr.bounds_symbolic(par)
-        sol = self.qp(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=lbw - w, ubx=ubw - w,
-                      lam_x0=lw, lam_a0=lg)
-        return ca.Function("ocp_sqp_step", [w, lw, lg, par], [w + sol["x"], sol["lam_x"], sol["lam_a"]],
-                           ["w", "lam_w", "lam_g", "par"], ["w_next", "lam_w_next", "lam_g_next"])
+        w0 = ca.fmin(ca.fmax(w, lbw), ubw)
+        H, grad, g, J, _f = self.linearisation.symbolic(w0, par)
+        args = dict(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=lbw - w0, ubx=ubw - w0)
+
+        def violation_of(a, d):
+            rows = ca.mtimes(J, d)
+            return ca.mmax(ca.vertcat(a["lba"] - rows, rows - a["uba"], a["lbx"] - d, d - a["ubx"], 0))
+
+        sol = self.qp(**args, lam_x0=lw, lam_a0=lg)
+        d, lam_x, lam_a = sol["x"], sol["lam_x"], sol["lam_a"]
+        violation, relaxed = violation_of(args, d), ca.MX(0)
+        rows, columns = self._relaxed_rows(tuple(relax)) or (np.zeros(0, int), np.zeros(0, int))
+        if rows.size or columns.size:
+            loose = dict(args)
+            for key, index, size in (("lba", rows, m), ("uba", rows, m), ("lbx", columns, n), ("ubx", columns, n)):
+                mask = np.zeros(size)
+                mask[index] = 1.0
+                loose[key] = ca.if_else(ca.DM(mask), ca.DM.ones(size) * (-np.inf if key.startswith("lb") else np.inf),
+                                        args[key])
+            names = list(loose)
+            inputs = [ca.MX.sym(name, args[name].sparsity()) for name in names]
+            qp = self.qp(**dict(zip(names, inputs)))
+            again = ca.Function("ocp_qp_relaxed", inputs, [qp["x"], qp["lam_x"], qp["lam_a"]])
+            skip = ca.Function("ocp_qp_kept", inputs, [ca.MX.zeros(n), ca.MX.zeros(n), ca.MX.zeros(m)])
+            relaxed = violation > self.qp_feasibility
+            d2, lam_x2, lam_a2 = ca.Function.conditional("ocp_qp_relax_if", [skip], again)(
+                relaxed, *[loose[name] for name in names])
+            d, lam_x, lam_a = (ca.if_else(relaxed, a, b) for a, b in ((d2, d), (lam_x2, lam_x), (lam_a2, lam_a)))
+            violation = ca.if_else(relaxed, violation_of(loose, d2), violation)
+        return ca.Function("ocp_sqp_step", [w, lw, lg, par],
+                           [ca.fmin(ca.fmax(w0 + d, lbw), ubw), lam_x, lam_a, violation, relaxed],
+                           ["w", "lam_w", "lam_g", "par"], ["w_next", "lam_w_next", "lam_g_next", "violation",
+                                                            "relaxed"])
 
 
 class RTIRoute(SQPRoute):

@@ -1,0 +1,94 @@
+"""The controller on the robot: the exported C project builds without warnings, replays the whole N-shape
+log within 1e-9 of the Python controller, and drives the simulator through ctypes to the same run."""
+
+import re
+import shutil
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from rollbot_oc.cli import EXIT_USAGE, main
+from rollbot_oc.codegen import compiler
+from rollbot_oc.control.nmpc.tracking import tracking_problem
+from rollbot_oc.params import RollbotParams
+from rollbot_oc.problems import run_problem
+from rollbot_oc.scenarios import load_bundled
+
+def test_structured_linearisation_as_a_graph_is_the_numeric_one():
+    """``StructuredLinearisation.symbolic`` (what the C export generates) gives the numeric call's values."""
+    route = tracking_problem(4, 0.1).solver("rti", qp_solver="qrqp", compiled=False)
+    tr, lin = route.transcription, route.linearisation
+    w, par = ca.MX.sym("w", tr.w.numel()), ca.MX.sym("par", tr.par.numel())
+    graph = ca.Function("lin", [w, par], list(lin.symbolic(w, par)))
+    rng = np.random.default_rng(1)
+    w0 = tr.default_guess() + 0.01 * rng.standard_normal(tr.w.numel())
+    par0 = rng.uniform(0.1, 1.0, tr.par.numel())
+    par0[tr.layout.parameters["p"]] = RollbotParams().vector()
+    for numeric, symbolic in zip(lin(w0, par0), graph(w0, par0)):
+        numeric = np.array(ca.DM(numeric).full()) if not np.isscalar(numeric) else np.array([[numeric]])
+        assert np.all(np.isfinite(symbolic.full()))
+        assert np.allclose(numeric.reshape(symbolic.shape), symbolic.full(), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_export_builds_replays_the_whole_n_shape_and_closes_the_loop_through_c(tmp_path):
+    """One test (one export and one build, whichever worker runs it): the project is written whole, builds with
+    -std=c99 -O2 -Wall -Werror, ``make check`` replays every period of the N-shape within 1e-9 (and fails on a
+    log the controller did not give), and the simulator driving the C library gives the same run."""
+    from rollbot_oc.export.library import CController
+    from rollbot_oc.export.project import build, export_c
+
+    result = export_c(tmp_path / "rollbot_c", load_bundled("n_shape"))
+    folder = result.folder
+    for name in ("rollbot_period.c", "rollbot_period.h", "rollbot_config.h", "rollbot_data.c", "rollbot_controller.h",
+                 "rollbot_controller.c", "main.c", "Makefile", "README.md", "replay_log.txt", "export.json"):
+        assert (folder / name).is_file(), name
+    source = (folder / "rollbot_period.c").read_text()
+    assert "malloc" not in source and "calloc" not in source  # no heap in the step
+    assert result.metrics["completed"] and len(result.metrics["stop_errors"]) == 4
+    assert result.log.shape[1] == 14 and result.log.shape[0] == int(round(result.metrics["duration"] / 0.01))
+    assert result.sizes["work_bytes"] > 0 and result.sizes["memory_bytes"] == 8 * result.step.memory.size
+    if compiler() is None or shutil.which("make") is None:
+        pytest.skip("no C compiler or make: the exported project cannot be built here")
+
+    built = build(folder, jobs=2)
+    assert built.returncode == 0, built.stderr[-2000:]
+    assert "warning" not in built.stderr.lower()  # -Wall -Werror: a warning would have failed the build
+    check = build(folder, "check")
+    assert check.returncode == 0, check.stdout[-2000:] + check.stderr[-2000:]
+    found = re.search(r"max \|diff\| = (\S+)", check.stdout)
+    assert found and float(found.group(1)) <= 1e-9
+    assert f"replayed {result.log.shape[0]} periods" in check.stdout  # the whole N-shape log
+
+    # closed loop: the simulator drives the C library (ctypes): the same commands (to 1e-9), the same metrics
+    c = CController(folder, result.step, result.reference, record=True)
+    run = run_problem(load_bundled("n_shape"), c, show_progress=False)
+    assert c.context_bytes >= result.sizes["work_bytes"]
+    commands = np.array(c.commands)
+    assert commands.shape == result.log[:, 12].shape
+    assert np.max(np.abs(commands - result.log[:, 12])) <= 1e-9
+    assert run.metrics["completed"]
+    assert run.metrics["completion_time"] == pytest.approx(result.metrics["completion_time"], abs=1e-9)
+    assert np.allclose(run.metrics["stop_errors"], result.metrics["stop_errors"], rtol=0, atol=1e-9)
+
+    # a log the controller did not give fails the check
+    log = folder / "replay_log.txt"
+    lines = log.read_text().splitlines()[:200]
+    fields = lines[-1].split()
+    fields[12] = repr(float(fields[12]) + 1e-6)  # a command 1e-6 rad/s^2 off
+    log.write_text("\n".join(lines[:-1] + [" ".join(fields)]) + "\n")
+    check = build(folder, "check")
+    assert check.returncode != 0 and "check FAILED" in check.stdout
+
+
+def test_export_c_refuses_what_it_cannot_export(tmp_path, capsys):
+    assert main(["export-c", "--out", str(tmp_path / "c"), "--problem", "circle_R035"]) == EXIT_USAGE
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "course of stops" in err[0] and "Traceback" not in err[0]
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    assert main(["export-c", "--out", str(afile)]) == EXIT_USAGE
+    assert "not a folder" in capsys.readouterr().err
+    assert main(["run", "n_shape", "--controller", "c"]) == EXIT_USAGE
+    assert "--c-project" in capsys.readouterr().err

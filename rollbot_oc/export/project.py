@@ -37,7 +37,7 @@ from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.export.embedded import EmbeddedController
 from rollbot_oc.export.reference import EmbeddedReference, plan_reference
-from rollbot_oc.export.step import StepFunction, control_step
+from rollbot_oc.export.step import EMBEDDED_SETTINGS, StepFunction, control_step
 from rollbot_oc.outputs import OutputFolder, atomic_write_text, to_json
 
 __all__ = ["export_c", "ExportResult", "build", "HAND_WRITTEN", "LOG_NAME", "BUILD_TIMEOUT"]
@@ -91,7 +91,7 @@ def embedded_controller(problem, params=None, settings: NMPCSettings | None = No
         raise ConfigError(f"{problem.source}: the exported controller stops at every waypoint; "
                           "pass-through waypoints are not supported")
     believed = params or problem.params.replace(slope=0.0)
-    s = settings or NMPCSettings()
+    s = settings or EMBEDDED_SETTINGS
     reference = plan_reference(mission.stops, problem.initial_state(), believed, s)
     step = control_step(believed, s, problem.dt, mission.stop_rule)
     return EmbeddedController(step, reference, record=record), step, reference
@@ -190,7 +190,7 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     params : RollbotParams, optional
         The robot the controller believes in (the problem's on a level floor by default).
     settings : NMPCSettings, optional
-        The NMPC's settings the step is built with.
+        The NMPC's settings the step is built with (``step.EMBEDDED_SETTINGS`` by default).
     seed : int
         Seed of the recorded run's sensor noise.  The run ends when the controller is done, or after
         ``RECORD_FACTOR`` times the planned legs' duration and ``RECORD_MARGIN`` seconds (within the
@@ -206,7 +206,7 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     from rollbot_oc.problems import run_problem
 
     folder = OutputFolder(out)  # checked and created before anything is computed
-    s = settings or NMPCSettings()
+    s = settings or EMBEDDED_SETTINGS
     controller, step, reference = embedded_controller(problem, params, s, record=True)
     planned = float(np.sum(reference.durations))
     run = run_problem(problem, controller, seed=seed, show_progress=show_progress,

@@ -27,6 +27,7 @@ from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.ocp import SolveFailed
 from rollbot_oc.dynamics import NZ, REDUCED, to_reduced
 from rollbot_oc.errors import ConfigError
+from rollbot_oc.export.step import EMBEDDED_SETTINGS
 from rollbot_oc.params import RollbotParams
 
 __all__ = ["EmbeddedReference", "plan_reference"]
@@ -97,14 +98,15 @@ def plan_reference(stops, x0, params: RollbotParams, settings: NMPCSettings | No
     params : RollbotParams
         The controller's model (planned on its level floor).
     settings : NMPCSettings, optional
-        The NMPC's settings (``plan``, ``plan_starts``, ``constraints``, ``h``).
+        The NMPC's settings (``plan``, ``plan_starts``, ``constraints``, ``h``; ``EMBEDDED_SETTINGS`` by
+        default).
 
     Raises
     ------
     ConfigError
         If there are no stops, or a leg cannot be planned.
     """
-    s = settings or NMPCSettings()
+    s = settings or EMBEDDED_SETTINGS
     if not len(stops):
         raise ConfigError("the exported controller follows a course of stops; this mission has none")
     planner = _rest_to_rest(params.replace(slope=0.0), s.plan, tuple(s.constraints))

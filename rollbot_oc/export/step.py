@@ -57,7 +57,12 @@ from rollbot_oc.missions.stops import StopRule
 from rollbot_oc.params import TILT, ParamView, RollbotParams
 from rollbot_oc.rotations import quat_multiply
 
-__all__ = ["STATUS", "Memory", "StepFunction", "control_step", "HISTORY"]
+__all__ = ["EMBEDDED_SETTINGS", "STATUS", "Memory", "StepFunction", "control_step", "HISTORY"]
+
+# The robot's processor has a tenth of a desktop core's speed: the exported step keeps the NMPC's weights, limits
+# and fallbacks with 30 intervals of 0.1 s (the Python NMPC's 60 of 0.05 s follow its plans closer at twice the
+# cost per solve and twice the solves; ``benchmarks/bench_export_c_result.txt`` measures this one).
+EMBEDDED_SETTINGS = NMPCSettings(N=30, h=0.1, substeps=2, max_failures=3)
 
 HISTORY = 4  # commands remembered: delay compensation over up to HISTORY - 1 periods of latency
 STATUS = {0: "solved", 1: "between solves", 2: "QP failed: previous plan", 3: "brake", 4: "done"}
@@ -255,13 +260,14 @@ def control_step(params: RollbotParams, settings: NMPCSettings | None = None, dt
     params : RollbotParams
         The controller's model (its tilt is the estimator's prior).
     settings : NMPCSettings, optional
-        Horizon, weights, limits, estimator, hold and fallback settings (the NMPC's).
+        Horizon, weights, limits, estimator, hold and fallback settings (the NMPC's; ``EMBEDDED_SETTINGS``
+        by default).
     dt : float
         Control period, s.
     rule : StopRule, optional
         When a stop counts as reached (the mission's ``stop_rule``; the default rule).
     """
-    return _control_step(params, settings or NMPCSettings(), float(dt), rule or StopRule())
+    return _control_step(params, settings or EMBEDDED_SETTINGS, float(dt), rule or StopRule())
 
 
 @functools.lru_cache(maxsize=4)

@@ -113,9 +113,10 @@ def test_failed_solves_fall_back_without_crashing(monkeypatch):
 
 
 def test_ipopt_route_converges_on_the_same_problem():
-    """IPOPT (exact Hessian) is too slow for 10 Hz here, so it is studied without the real-time limit."""
+    """IPOPT (exact Hessian) is too slow for real time here, so it is studied without the real-time limit
+    (on 30 intervals of 0.1 s: the route, not the horizon, is what this checks)."""
     problem = load_problem(PROBLEMS / "circle_R065.toml").with_duration(3.0)
-    settings = NMPCSettings(solver="ipopt", max_solve_time=60.0)
+    settings = NMPCSettings(solver="ipopt", max_solve_time=60.0, N=30, h=0.1, substeps=2)
     m = run_problem(problem, "nmpc", settings=settings).metrics
     assert m["failed_solves"] == 0 and m["fallback_pid"] == 0
     assert set(m["solver_statuses"]) <= {"Solve_Succeeded", "Solved_To_Acceptable_Level"}
@@ -233,6 +234,28 @@ def test_a_leg_that_cannot_be_planned_goes_by_a_stepping_stone(monkeypatch):
     assert m["stones"] >= 1 and m["brakes"] == 0 and m["plan_failures"] >= 1
     assert m["completed"] and max(m["stop_errors"]) <= 0.07
     check_plant_limits(m)
+
+
+def test_a_failed_refinement_of_the_first_guess_is_planned_again_further_along(monkeypatch):
+    """The first refinement of the first leg's guess is made to fail: the robot goes on on the guess and the
+    leg is refined once more from further along it (not followed to the guess's slow end)."""
+    solve = RestToRest.solve
+    refinements = []
+
+    def first_refinement_fails(self, start, goal, guess=None, *args, **kwargs):
+        if guess is not None and guess.status == "guess":
+            refinements.append(float(np.asarray(start)[0]))
+            if len(refinements) == 1:
+                raise SolveFailed("injected", "Maximum_Iterations_Exceeded", None)
+        return solve(self, start, goal, guess, *args, **kwargs)
+
+    monkeypatch.setattr(RestToRest, "solve", first_refinement_fails)
+    base = load_problem(PROBLEMS / "n_shape.toml")
+    problem = replace(base, mission=Waypoints(tuple(base.mission.points[:1])), duration=30.0)
+    m = run_problem(problem, "nmpc").metrics
+    assert len(refinements) >= 2 and refinements[1] != refinements[0]  # planned again, from elsewhere
+    assert m["plan_failures"] >= 1 and m["plans"][0]["status"] == "Solve_Succeeded"
+    assert m["completed"] and max(m["stop_errors"]) <= 0.07
 
 
 def test_a_state_no_command_keeps_within_the_limits_gets_a_relaxed_solve():

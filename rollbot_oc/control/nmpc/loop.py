@@ -281,6 +281,8 @@ class NMPC(ControllerBase):
                 best = (key, candidate)
         if best is not None:
             self._pending[self.segment] = best[1]
+        elif any(t_now - self.segment_start + ahead < guess.T - ahead for ahead in self.settings.plan_handovers):
+            self._refine_at = max(self._planner_free, t_now + self.settings.h)  # failed: again once computed
 
     def _launch(self, segment: int, t_now: float, t_start, z_start, guess=None):
         """Plan leg ``segment`` from ``z_start`` on the estimated floor; it may be used once its modelled

@@ -345,17 +345,15 @@ class NMPC(ControllerBase):
         the leg before it is planned to end in (once that plan is ready, and not a stepping stone's; the
         current leg's refinement counts once it is ready, before it takes over)."""
         j, base = self.segment, plan
-        if j not in self._pending and plan.extra.get("provisional"):
-            return  # a guess not (yet) being refined: where it ends is not a plan
         if j not in self._pending:
-            j += 1
+            j += 1  # (a provisional guess not being refined ends nowhere planned: refused below)
         while j in self._pending:
             pending = self._pending[j]
-            if t_now < pending["ready"] - 1e-9 or pending["plan"] is None or pending["plan"].extra.get("stone"):
+            if t_now < pending["ready"] - 1e-9 or pending["plan"] is None:
                 return
             j, base = j + 1, pending["plan"]
         if base.extra.get("stone") or base.extra.get("provisional"):
-            return
+            return  # a stepping stone's end is planned again from rest; a guess's end is not a plan
         if j >= len(self.mission.stops) or j > self.segment + self.settings.legs_ahead \
                 or self.reference.segments[j] is not None:
             return

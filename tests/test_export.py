@@ -46,6 +46,7 @@ def test_export_builds_replays_the_whole_n_shape_and_closes_the_loop_through_c(t
         assert (folder / name).is_file(), name
     source = (folder / "rollbot_period.c").read_text()
     assert "malloc" not in source and "calloc" not in source  # no heap in the step
+    assert source.count("its factors stand") == 1  # qrqp keeps unchanged factors (the replay checks the outputs)
     assert result.metrics["completed"] and len(result.metrics["stop_errors"]) == 4
     assert result.log.shape[1] == 14 and result.log.shape[0] == int(round(result.metrics["duration"] / 0.01))
     assert result.sizes["work_bytes"] > 0 and result.sizes["memory_bytes"] == 8 * result.step.memory.size
@@ -92,3 +93,12 @@ def test_export_c_refuses_what_it_cannot_export(tmp_path, capsys):
     assert "not a folder" in capsys.readouterr().err
     assert main(["run", "n_shape", "--controller", "c"]) == EXIT_USAGE
     assert "--c-project" in capsys.readouterr().err
+
+
+def test_generated_code_edits_refuse_an_unexpected_source():
+    """The edits of the generated step find exactly the code they expect, or stop the export (another CasADi)."""
+    from rollbot_oc.export.project import _keep_unchanged_factors, _qp_failure_not_an_error
+
+    for edit in (_keep_unchanged_factors, _qp_failure_not_an_error):
+        with pytest.raises(RuntimeError, match="CasADi version"):
+            edit("int main(void) { return 0; }\n")

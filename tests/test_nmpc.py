@@ -91,6 +91,24 @@ def test_the_tilt_estimate_finds_the_slope_and_the_entry_is_planned_while_moving
     assert [p["status"] for p in m["plans"]] == ["Solve_Succeeded"] and m["reach_time"] is not None
 
 
+def test_a_far_start_tries_only_entries_long_enough_and_follows_the_first_in_time():
+    """approach: the ramp from 1.8 m out revolves about a centre far from the orbit's, so the entry skips the
+    durations too short to move it there (``entry_shift_speed``; a shorter one spent its 400 iterations and
+    made the next too late); the first tried converges, is ready before its start, and is followed onto the
+    circle, without a failed QP or the PID."""
+    problem = load_problem(PROBLEMS / "approach.toml").with_duration(20.0)
+    nmpc = make_controller("nmpc", problem)
+    nmpc.prepare(problem.initial_state())
+    s, times = nmpc.settings, nmpc._entry_times()
+    assert times[0] > min(s.entry_times) and times[0] * s.entry_shift_speed >= nmpc._entry_shift
+    assert list(times) == [d for d in s.entry_times if d >= times[0]]  # and the longer ones, in turn
+    m = run_problem(problem, nmpc).metrics
+    assert m["plan_failures"] == 0 and m["plan_late"] == 0 and m["plan_solves"] == 1
+    assert [p["T"] for p in m["plans"]] == [pytest.approx(times[0])]
+    assert m["reach_time"] is not None and m["failed_solves"] == 0 and m["fallback_pid"] == 0
+    check_plant_limits(m)
+
+
 def test_failed_solves_fall_back_without_crashing(monkeypatch):
     """Every fourth solve fails: the loop carries on with shifted plans and, when failures pile up, the PID."""
     calls = {"n": 0}

@@ -18,12 +18,14 @@ Structure (do-mpc's separation: model, controller, simulator over one model):
   new leg from there, as at the start.  For circles: at once a ramp up to
   the orbit's speed (a simulation of the model), and, planned from where the
   ramp will be ``entry_handover`` later, an entry onto the quasi-stable orbit
-  of the target circle in a fixed time (5 s, else 7 or 10 s) with the least
-  effort, then the orbit itself.  For gates (``gates``):
-  one minimum-time plan through every gate on ``rollbot_oc.ocp``, followed
-  once its modelled compute time has passed, the position weighted more at
-  each planned gate passage; after the last gate the motor's speed is
-  ramped to zero; a missed gate is planned again from rest.
+  of the target circle in a fixed time (5 s, else 7 or 10 s; from the
+  shortest in which the ramp's revolving centre can reach the orbit's at
+  ``entry_shift_speed``) with the least effort, then the orbit itself.
+  For gates (``gates``): one minimum-time plan through every gate on
+  ``rollbot_oc.ocp``, followed once its modelled compute time has passed,
+  the position weighted more at each planned gate passage; after the last
+  gate the motor's speed is ramped to zero; a missed gate is planned again
+  from rest.
 * **Tracking NMPC**: every ``h = 0.05`` s it solves a multiple-shooting
   problem over ``N = 60`` intervals (3 s, about half a revolution period and
   half the 7 s recovery time) that keeps the predicted reduced state near the

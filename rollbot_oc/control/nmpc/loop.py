@@ -109,6 +109,7 @@ class NMPC(ControllerBase):
         entry = self._entry(s.entry_times[0])
         guess, phase = orbit_guess(to_reduced(x0), orbit.centre, entry, hold=s.tilt_settle + 4 * s.entry_handover)
         self.reference = Reference([(guess, {})], self._orbit(entry, phase))
+        self._entry_shift = float(np.linalg.norm(_revolving_centre(guess, entry.quasi.Omega) - orbit.centre))
         self.segment_start, self._refine_at = 0.0, s.tilt_settle
         self.plan_time = time.perf_counter() - start
         return self.reference
@@ -120,6 +121,15 @@ class NMPC(ControllerBase):
         intervals = max(2, int(round(duration / s.entry_interval)))
         return _orbit_entry(self.mission.orbit.radius, self.params.replace(slope=0.0), replace(s.entry, N=intervals),
                             tuple(s.constraints))
+
+    def _entry_times(self) -> list:
+        """The entry durations to try, s: those of ``entry_times`` from the shortest long enough to move the
+        robot's revolving centre from the ramp's to the orbit's at ``entry_shift_speed`` (the longest if none
+        is).  A shorter entry from a ramp far from the orbit seldom converges, and its failed iterations
+        delay the one that would have."""
+        s = self.settings
+        need = self._entry_shift / s.entry_shift_speed
+        return [d for d in s.entry_times if d >= need - 1e-9] or [max(s.entry_times)]
 
     def _orbit(self, entry: OrbitEntry, phase: float) -> dict:
         """The orbit a reference ends on, reached at ``phase`` (rad)."""
@@ -147,9 +157,9 @@ class NMPC(ControllerBase):
 
     def _launch_entry(self, t_now: float, late: Plan | None = None):
         """Plan the entry onto the orbit from where the ramp followed now will be ``entry_handover`` s later, for
-        each of ``entry_times`` in turn until one converges (first, from a ``late`` entry's own duration and
-        solution); it may be used once its modelled compute time has passed.  Nothing is planned if the ramp
-        ends before then."""
+        each of the durations of ``_entry_times`` in turn until one converges (first, from a ``late`` entry's
+        own duration and solution); it may be used once its modelled compute time has passed.  Nothing is
+        planned if the ramp ends before then."""
         s, centre = self.settings, self.mission.orbit.centre
         ramp = self.reference.segments[0][0]
         handover = t_now - self.segment_start + s.entry_handover
@@ -164,7 +174,7 @@ class NMPC(ControllerBase):
                 guess.extra = {"phase": orbit_phase(guess.z[REDUCED.position, -1], centre, entry.qs_reduced)}
             return entry.solve(z_start, centre, guess=guess, duration=duration)
 
-        tries = ([(late.T, late)] if late is not None else []) + [(duration, None) for duration in s.entry_times]
+        tries = ([(late.T, late)] if late is not None else []) + [(duration, None) for duration in self._entry_times()]
         plan, iterations, _ = self._first_converged([functools.partial(attempt, *args) for args in tries])
         ready = self._schedule(t_now, time.perf_counter() - wall, iterations * s.plan_iteration_time)
         self._pending[0] = {"plan": plan, "start": self.segment_start + handover, "ready": ready}
@@ -747,6 +757,13 @@ class NMPC(ControllerBase):
 @functools.lru_cache(maxsize=8)
 def _rest_to_rest(params: RollbotParams, settings: OCPSettings, constraints: tuple) -> RestToRest:
     return RestToRest(params, settings, constraints)
+
+
+def _revolving_centre(ramp: Plan, Omega: float) -> np.ndarray:
+    """The centre a ramp ends revolving about, m: its mean position over its last revolution (``2 pi / Omega``
+    s; the whole ramp if it is shorter)."""
+    times = np.linspace(max(ramp.T - 2 * math.pi / abs(Omega), 0.0), ramp.T, 200, endpoint=False)
+    return ramp.state(times)[REDUCED.position].mean(axis=1)
 
 
 @functools.lru_cache(maxsize=8)

@@ -213,7 +213,15 @@ class NMPCSettings:
         ``realtime``, its measured wall-clock time instead).
     entry_times : tuple of float
         Circles: durations tried, in order, for the planned entry onto the
-        orbit (least effort in that time), s.
+        orbit (least effort in that time), s; those too short for
+        ``entry_shift_speed`` are skipped.
+    entry_shift_speed : float
+        Circles: how fast an entry is taken to move the robot's revolving
+        centre, m/s.  The entry tries the durations of ``entry_times`` from the
+        shortest in which the ramp's centre can reach the orbit's at this speed
+        (one half revolution at the fastest driving speed moves the centre by
+        about twice the difference of the fastest revolving radius and the
+        orbit's: of the order of 1.5 m in 4 s).
     entry_interval : float
         Circles: interval of the entry's grid, s.
     entry_handover : float
@@ -295,6 +303,7 @@ class NMPCSettings:
     caution_floor: float = 0.7
     plan_guess_time: float = 0.5
     entry_times: tuple = (5.0, 7.0, 10.0)
+    entry_shift_speed: float = 0.35
     entry_interval: float = 0.1
     entry_handover: float = 3.0
     max_solve_time: float | None = None
@@ -322,5 +331,7 @@ class NMPCSettings:
             raise ValueError(f"NMPC solver = {self.solver!r}; valid are 'ipopt', 'rti'")
         if not (isinstance(self.N, int) and self.N >= 2):
             raise ValueError(f"NMPC N = {self.N!r} must be a whole number >= 2")
+        if not (math.isfinite(self.entry_shift_speed) and self.entry_shift_speed > 0):
+            raise ValueError(f"NMPC entry_shift_speed = {self.entry_shift_speed!r} m/s must be positive")
         if not (math.isfinite(self.h) and 0 < self.h <= 0.5):
             raise ValueError(f"NMPC h = {self.h!r} s is out of range: valid is (0, 0.5]")

@@ -50,13 +50,13 @@ import numpy as np
 
 from rollbot_oc.params import NP, ParamView, RollbotParams
 from rollbot_oc.rotations import (
-    matrix_to_quat_np, quat_derivative, quat_multiply_np, quat_to_matrix, rot_y_np, rot_z_np,
+    matrix_to_quat_np, quat_derivative, quat_multiply_np, quat_to_matrix, quat_to_matrix_np, rot_y_np, rot_z_np,
 )
 
 __all__ = [
     "STATE_NAMES", "STATE_UNITS", "NX", "NU", "NW", "POS", "QUAT", "OMEGA", "THETA", "THETA_DOT",
     "PointMass", "ShellDynamics", "shell_dynamics", "pendulum_mass", "gravity_vector", "rk4", "motor_speed_clip",
-    "SymbolicModel", "symbolic_model", "RollbotModel", "rest_state", "imbalance",
+    "SymbolicModel", "symbolic_model", "RollbotModel", "rest_state", "rest_attitude", "imbalance",
     "NZ", "REDUCED_NAMES", "ReducedModel", "reduced_model", "to_reduced", "from_reduced",
     "StateSlices", "FULL", "REDUCED",
 ]
@@ -402,6 +402,33 @@ def rest_state(params: RollbotParams | None = None, position=(0.0, 0.0), heading
     x[QUAT] = matrix_to_quat_np(T)
     x[THETA] = theta
     return x
+
+
+def rest_attitude(quaternion, phi: float) -> np.ndarray:
+    """The reduced attitude at rest (the mass straight below the shell centre) nearest to ``quaternion``.
+
+    At rest the reduced attitude (the shell's turned back by the motor angle, ``to_reduced``) is
+    ``Rz(heading) Ry(phi)`` (``rest_state``): one attitude per heading of the motor axis.  This keeps the
+    heading of ``quaternion``'s motor axis and sets the axis' tilt back to ``phi``; the sign is the one
+    nearest ``quaternion`` (q and -q are the same attitude).  A state whose mass has swung over the top
+    then rests with it hanging again, not balanced upright.
+
+    Parameters
+    ----------
+    quaternion : array_like (4,)
+        A reduced attitude (w, x, y, z), not necessarily of unit norm.
+    phi : float
+        The motor axis' tilt from the vertical at rest, rad (``RollbotParams.phi``).
+
+    Returns
+    -------
+    numpy.ndarray (4,)
+    """
+    q = np.asarray(quaternion, float)
+    axis = quat_to_matrix_np(q / np.linalg.norm(q))[:, 2]  # the motor axis in the world
+    heading = math.atan2(axis[1], axis[0]) if math.hypot(axis[0], axis[1]) > 1e-9 else 0.0
+    rest = matrix_to_quat_np(rot_z_np(heading) @ rot_y_np(phi))
+    return rest if float(rest @ q) >= 0 else -rest
 
 
 class RollbotModel:

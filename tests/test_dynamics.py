@@ -3,10 +3,13 @@
 import casadi as ca
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from reference import newton_euler, quat_matrix, rollbot_mass
 
 from rollbot_oc.dynamics import (
-    NW, NX, OMEGA, POS, QUAT, RollbotModel, PointMass, rest_state, shell_dynamics, symbolic_model,
+    NW, NX, OMEGA, POS, QUAT, REDUCED, RollbotModel, PointMass, imbalance, rest_attitude, rest_state, shell_dynamics,
+    symbolic_model, to_reduced,
 )
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.rotations import matrix_to_quat_np, quat_to_matrix_np, rot_z_np
@@ -164,3 +167,22 @@ def test_torque_is_affine_in_acceleration_and_bounds_respect_limit():
         assert taus[0] == pytest.approx(-params.max_torque, rel=1e-10)
         assert taus[1] == pytest.approx(params.max_torque, rel=1e-10)
         assert lo < hi
+
+
+@given(st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(lambda v: np.linalg.norm(v) > 0.1),
+       st.floats(0.5, 1.1))
+def test_rest_attitude_hangs_the_mass_below_the_centre_and_keeps_the_heading(q, phi):
+    """Any attitude (the mass swung over the top included) rests with the mass straight below the shell centre
+    (the statics' ``imbalance`` is zero on a level floor), its motor axis tilted by ``phi`` with the same
+    heading, on the sign of the given quaternion; a rest attitude is its own."""
+    q = np.asarray(q) / np.linalg.norm(q)
+    p = RollbotParams(phi=phi).vector()
+    rest = rest_attitude(q, phi)
+    assert np.linalg.norm(rest) == pytest.approx(1.0, abs=1e-12) and rest @ q >= 0
+    assert np.allclose(np.array(ca.DM(imbalance(ca.DM(rest), ca.DM(p)))).ravel(), 0.0, atol=1e-12)
+    axis, before = quat_to_matrix_np(rest)[:, 2], quat_to_matrix_np(q)[:, 2]
+    assert np.arccos(np.clip(axis[2], -1, 1)) == pytest.approx(phi, abs=1e-9)
+    if np.hypot(before[0], before[1]) > 1e-6:
+        assert np.arctan2(axis[1], axis[0]) == pytest.approx(np.arctan2(before[1], before[0]), abs=1e-9)
+    at_rest = to_reduced(rest_state(RollbotParams(phi=phi), heading=float(q[1] * 3), theta=float(q[2] * 3)))[REDUCED.quaternion]
+    assert np.allclose(rest_attitude(at_rest, phi), at_rest, atol=1e-12)

@@ -110,14 +110,16 @@ def test_a_far_start_tries_only_entries_long_enough_and_follows_the_first_in_tim
 
 
 def test_failed_solves_fall_back_without_crashing(monkeypatch):
-    """Every fourth solve fails: the loop carries on with shifted plans and, when failures pile up, the PID."""
-    calls = {"n": 0}
+    """Every fourth solve instant fails (warm and cold): the loop carries on with shifted plans and, when
+    failures pile up, the PID."""
+    calls = {"n": 0, "z": None}
     solve = RTISolver.solve
     run = NMPCSettings().max_failures + 2  # a run of failures longer than the NMPC waits out
 
-    def flaky(self, *args, **kwargs):
-        calls["n"] += 1
-        x, lam, status, ok, seconds = solve(self, *args, **kwargs)
+    def flaky(self, z, *args, **kwargs):
+        if z is not calls["z"]:  # a new solve instant (the cold retry of a failed warm solve is the same one)
+            calls["n"], calls["z"] = calls["n"] + 1, z
+        x, lam, status, ok, seconds = solve(self, z, *args, **kwargs)
         if calls["n"] % 4 == 0 or 40 <= calls["n"] < 40 + run:
             return x, lam, "injected failure", False, seconds
         return x, lam, status, ok, seconds
@@ -126,8 +128,32 @@ def test_failed_solves_fall_back_without_crashing(monkeypatch):
     problem = load_problem(PROBLEMS / "circle_R050.toml").with_duration(20.0)
     m = run_problem(problem, "nmpc").metrics
     assert m["failed_solves"] >= 8 and m["fallback_shifted"] >= 5 and m["fallback_pid"] >= 1
-    assert m["solver_statuses"]["injected failure"] == m["failed_solves"]
+    assert sum(n for status, n in m["solver_statuses"].items() if status.endswith("injected failure")) \
+        == m["failed_solves"]
+    assert 1 <= m["cold_retries"] <= m["failed_solves"]  # a warm failure is tried again from the reference
     assert not m["events"] and m["duration"] == pytest.approx(20.0)
+
+
+def test_a_failed_warm_start_is_solved_again_from_the_reference(monkeypatch):
+    """Every third warm-started solve fails (an iterate gone bad): each is solved again from the reference in
+    the same interval, and no solve instant is lost."""
+    calls = {"warm": 0}
+    solve = RTISolver.solve
+
+    def bad_warm_starts(self, z, Zr, Ur, p, warm=None, *args, **kwargs):
+        x, lam, status, ok, seconds = solve(self, z, Zr, Ur, p, warm, *args, **kwargs)
+        if warm is not None:
+            calls["warm"] += 1
+            if calls["warm"] % 3 == 0:
+                return x, lam, "injected failure", False, seconds
+        return x, lam, status, ok, seconds
+
+    monkeypatch.setattr(RTISolver, "solve", bad_warm_starts)
+    problem = load_problem(PROBLEMS / "circle_R050.toml").with_duration(6.0)
+    m = run_problem(problem, "nmpc").metrics
+    assert m["cold_retries"] >= 10 and m["failed_solves"] == 0 and m["fallback_shifted"] == 0
+    assert sum(n for status, n in m["solver_statuses"].items() if status.startswith("cold after injected failure")) \
+        == m["cold_retries"]
 
 
 def test_ipopt_route_converges_on_the_same_problem():
@@ -212,12 +238,13 @@ def test_recovers_from_a_spin_and_a_push():
 def test_a_run_of_failed_solves_on_a_leg_brakes_and_replans_from_rest(monkeypatch):
     """Ten solves in a row fail mid-leg: the motor is ramped to a stop, the robot is brought to rest and
     gets a new leg from there; both stops are still reached at rest."""
-    calls = {"n": 0}
+    calls = {"n": 0, "z": None}
     solve = RTISolver.solve
 
-    def flaky(self, *args, **kwargs):
-        calls["n"] += 1
-        x, lam, status, ok, seconds = solve(self, *args, **kwargs)
+    def flaky(self, z, *args, **kwargs):
+        if z is not calls["z"]:  # a new solve instant (the cold retry of a failed warm solve is the same one)
+            calls["n"], calls["z"] = calls["n"] + 1, z
+        x, lam, status, ok, seconds = solve(self, z, *args, **kwargs)
         return (x, lam, "injected failure", False, seconds) if 30 <= calls["n"] < 40 else (x, lam, status, ok, seconds)
 
     monkeypatch.setattr(RTISolver, "solve", flaky)

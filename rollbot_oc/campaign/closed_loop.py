@@ -38,8 +38,8 @@ COURSE_COLUMNS = ("n_stops", "length", "duration", "slope_deg", "slope_dir_deg",
                   "position_noise_mm", "angle_noise_deg", "latency", "shell_mass_error", "pendulum_mass_error",
                   "k0_error", "robot_draws")
 # run metrics copied from the run's metrics when the controller reports them (the NMPC's solver counts)
-SOLVER_COLUMNS = ("failed_solves", "late_solves", "fallback_shifted", "fallback_brake", "fallback_pid", "brakes",
-                  "stop_replans", "stones", "plan_failures", "plan_time")
+SOLVER_COLUMNS = ("failed_solves", "cold_retries", "late_solves", "fallback_shifted", "fallback_brake", "fallback_pid",
+                  "brakes", "stop_replans", "stones", "plan_failures", "plan_time")
 
 
 @register

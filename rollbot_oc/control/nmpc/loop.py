@@ -16,7 +16,7 @@ from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.tracking import RTISolver, TrackingSolver
 from rollbot_oc.control.ocp import (OCPSettings, OrbitEntry, Plan, RestToRest, SolveFailed, orbit_guess, orbit_phase,
                                     quasi_stable_guess)
-from rollbot_oc.dynamics import REDUCED, to_reduced
+from rollbot_oc.dynamics import REDUCED, rest_attitude, to_reduced
 from rollbot_oc.missions import PassMonitor, StopMonitor
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.simulate import Command, ControllerBase, Observation
@@ -426,7 +426,8 @@ class NMPC(ControllerBase):
             self._gate_plans = []  # every plan through the gates, for the report
             self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0,
                         "fallback_brake": 0, "late": 0, "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [],
-                        "plan_failures": 0, "plan_wait": 0.0, "brakes": 0, "plan_late": 0, "stones": 0, "unfit": 0}
+                        "plan_failures": 0, "plan_wait": 0.0, "brakes": 0, "plan_late": 0, "stones": 0, "unfit": 0,
+                        "cold_retries": 0}
         self.k = 0
         self.warm = None
         self.current = None  # (U, index of the interval in use)
@@ -562,8 +563,7 @@ class NMPC(ControllerBase):
                 self._braking_since = None
                 self._provisional(z, t_now)
             elif at_rest or t_now - self._braking_since >= s.brake_wait - 1e-9:
-                start = z.copy()
-                start[REDUCED.velocity] = 0.0
+                start = self._rest(z)
                 self._launch(i, t_now, None, start)
                 self._rest_plan = start  # held there (``hold_weights``) until the leg is ready
                 return
@@ -607,9 +607,8 @@ class NMPC(ControllerBase):
         diag = None
         if self._braking_since is not None:  # rest where the robot is (its motion counts), then hold there
             held = self._rest_plan is not None
-            Zr = np.tile((self._rest_plan if held else z)[:, None], (1, s.N + 1))
+            Zr = np.tile((self._rest_plan if held else self._rest(z))[:, None], (1, s.N + 1))
             Ur, diag = np.zeros(s.N), self._hold_diag if held else self._brake_diag
-            Zr[REDUCED.velocity] = 0.0
         else:
             Zr, Ur = self.reference.sample(self.segment, t_now - self.segment_start, s.h, s.N, position=z[REDUCED.position])
             self._settle(Zr, t_now, z)
@@ -627,6 +626,16 @@ class NMPC(ControllerBase):
         x, lam, status, ok, seconds = self.solver.solve(z, Zr, Ur, self.estimator.params(), self.warm, mission_weights,
                                                         diag)
         compute = seconds if s.realtime else self.solver.modelled_time()
+        if not ok and self.warm is not None:
+            # a warm start gone bad (an iterate that diverged linearises to a QP no solver can solve): once
+            # more from the reference, in the same interval, its compute time added
+            self.log["cold_retries"] += 1
+            first = status
+            x, lam, status, ok, again = self.solver.solve(z, Zr, Ur, self.estimator.params(), None, mission_weights,
+                                                          diag)
+            seconds += again
+            compute += again if s.realtime else self.solver.modelled_time()
+            status = f"cold after {first}: {status}"
         late = compute > (s.h if s.max_solve_time is None else s.max_solve_time)
         self.log["solve_times"].append(seconds)
         self.log["statuses"].append(status)
@@ -657,6 +666,14 @@ class NMPC(ControllerBase):
         self._ramp = None
         self.pid_until = t_now + s.pid_time
         self._pid_fresh = True
+
+    def _rest(self, z) -> np.ndarray:
+        """The rest state nearest the reduced state ``z``: where it is, still, the mass hanging
+        (``dynamics.rest_attitude``; a reference or start with the mass swung up is no state to rest in)."""
+        rest = np.array(z, float)
+        rest[REDUCED.velocity] = 0.0
+        rest[REDUCED.quaternion] = rest_attitude(rest[REDUCED.quaternion], self.params.phi)
+        return rest
 
     def _settle(self, Zr, t_now: float, z):
         """Past a leg's end within ``hold_radius`` of its stop, hold the robot where it is: the reference
@@ -733,6 +750,7 @@ class NMPC(ControllerBase):
             "solve_time_max": float(times.max()),
             "solver_statuses": statuses,
             "failed_solves": self.log["failed"],
+            "cold_retries": self.log["cold_retries"],
             "late_solves": self.log["late"],
             "fallback_shifted": self.log["fallback_shifted"],
             "fallback_pid": self.log["fallback_pid"],

@@ -48,9 +48,9 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.params import NP, ParamView, RollbotParams
+from rollbot_oc.params import NP, TILT, ParamView, RollbotParams
 from rollbot_oc.rotations import (
-    matrix_to_quat_np, quat_derivative, quat_multiply_np, quat_to_matrix, quat_to_matrix_np, rot_y_np, rot_z_np,
+    matrix_to_quat_np, quat_derivative, quat_multiply, quat_multiply_np, quat_to_matrix, rot_y_np, rot_z_np,
 )
 
 __all__ = [
@@ -404,31 +404,68 @@ def rest_state(params: RollbotParams | None = None, position=(0.0, 0.0), heading
     return x
 
 
-def rest_attitude(quaternion, phi: float) -> np.ndarray:
-    """The reduced attitude at rest (the mass straight below the shell centre) nearest to ``quaternion``.
+def rest_attitude(quaternion, p) -> np.ndarray:
+    """The reduced attitude at rest, balanced on the floor, with the heading of ``quaternion``'s motor axis.
 
-    At rest the reduced attitude (the shell's turned back by the motor angle, ``to_reduced``) is
-    ``Rz(heading) Ry(phi)`` (``rest_state``): one attitude per heading of the motor axis.  This keeps the
-    heading of ``quaternion``'s motor axis and sets the axis' tilt back to ``phi``; the sign is the one
-    nearest ``quaternion`` (q and -q are the same attitude).  A state whose mass has swung over the top
-    then rests with it hanging again, not balanced upright.
+    On a level floor the reduced attitude at rest (the shell's turned back by the motor angle,
+    ``to_reduced``) is ``Rz(heading) Ry(phi)`` (``rest_state``): the mass straight below the shell centre,
+    one attitude per heading of the motor axis.  On a slope the centre of mass must lie on the line through
+    the contact point along gravity (``imbalance`` zero): the motor axis is tilted a little more or less
+    than ``phi`` and the frame turned a little about it, ``Rz(heading) Ry(phi + a) Rz(b)`` (Newton's method
+    on ``imbalance``, its Jacobian by AD, from the level floor's ``a = b = 0``).  The heading is the one of
+    ``quaternion``'s motor axis (what the motor alone can reach: a mass swung over the top swings back
+    down), so a rest attitude is its own; the sign is the one nearer ``quaternion`` (q and -q are the same
+    attitude).
 
     Parameters
     ----------
     quaternion : array_like (4,)
         A reduced attitude (w, x, y, z), not necessarily of unit norm.
-    phi : float
-        The motor axis' tilt from the vertical at rest, rad (``RollbotParams.phi``).
+    p : array_like (NP,) or RollbotParams
+        The robot and its floor (``phi``, the masses, ``r0`` and the floor's ``tilt``).
 
     Returns
     -------
     numpy.ndarray (4,)
+
+    Raises
+    ------
+    ValueError
+        If no balanced attitude is found near the level one (a slope too steep for the robot to rest on).
     """
+    vector = p.vector() if isinstance(p, RollbotParams) else np.asarray(p, float)
     q = np.asarray(quaternion, float)
-    axis = quat_to_matrix_np(q / np.linalg.norm(q))[:, 2]  # the motor axis in the world
-    heading = math.atan2(axis[1], axis[0]) if math.hypot(axis[0], axis[1]) > 1e-9 else 0.0
-    rest = matrix_to_quat_np(rot_z_np(heading) @ rot_y_np(phi))
+    rest, residual = (np.array(v).ravel() for v in _rest_balance()(q / np.linalg.norm(q), vector))
+    if not (np.all(np.isfinite(rest)) and np.max(np.abs(residual)) < 1e-9):
+        raise ValueError(f"no attitude at rest on the floor of tilt {vector[TILT].round(4).tolist()} (sin of the slope)")
     return rest if float(rest @ q) >= 0 else -rest
+
+
+def _axis_quaternion(axis: int, angle):
+    """Rotation by ``angle`` about the coordinate axis ``axis`` (0, 1, 2: x, y, z), as a quaternion."""
+    half = 0.5 * angle
+    return ca.vertcat(ca.cos(half), *[ca.sin(half) if i == axis else 0 for i in range(3)])
+
+
+@functools.lru_cache(maxsize=1)
+def _rest_balance() -> ca.Function:
+    """``(q (4,), p) -> (rest (4,), imbalance (2,))``: ``Rz(heading) Ry(phi + a) Rz(b)``, the heading that of
+    the unit quaternion ``q``'s motor axis, with the tilt ``a`` of the axis and the turn ``b`` about it that
+    balance the robot (``rest_attitude``; Newton's method from ``a = b = 0``, the level floor's rest), and
+    what is left of the imbalance there."""
+    x, heading, p = ca.SX.sym("x", 2), ca.SX.sym("heading"), ca.SX.sym("p", NP)
+
+    def attitude(x, heading, p):
+        return quat_multiply(quat_multiply(_axis_quaternion(2, heading), _axis_quaternion(1, ParamView(p).phi + x[0])),
+                             _axis_quaternion(2, x[1]))
+
+    residual = ca.Function("rest_imbalance", [x, heading, p], [imbalance(attitude(x, heading, p), p)])
+    newton = ca.rootfinder("rest_newton", "newton", residual, {"abstol": 1e-12, "max_iter": 20, "error_on_fail": False})
+    Q, P = ca.MX.sym("q", 4), ca.MX.sym("p", NP)
+    axis = ca.mtimes(quat_to_matrix(Q), ca.DM([0, 0, 1]))  # the motor axis in the world
+    h = ca.atan2(axis[1], axis[0])
+    rest = attitude(newton(ca.MX.zeros(2), h, P), h, P)
+    return ca.Function("rest_balance", [Q, P], [rest, imbalance(rest, P)], ["q", "p"], ["rest", "imbalance"])
 
 
 class RollbotModel:

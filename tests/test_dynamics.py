@@ -170,19 +170,22 @@ def test_torque_is_affine_in_acceleration_and_bounds_respect_limit():
 
 
 @given(st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(lambda v: np.linalg.norm(v) > 0.1),
-       st.floats(0.5, 1.1))
-def test_rest_attitude_hangs_the_mass_below_the_centre_and_keeps_the_heading(q, phi):
-    """Any attitude (the mass swung over the top included) rests with the mass straight below the shell centre
-    (the statics' ``imbalance`` is zero on a level floor), its motor axis tilted by ``phi`` with the same
-    heading, on the sign of the given quaternion; a rest attitude is its own."""
+       st.floats(0.5, 1.1), st.floats(0.0, 0.05), st.floats(-np.pi, np.pi))
+def test_rest_attitude_balances_the_robot_and_keeps_the_heading(q, phi, slope, slope_dir):
+    """Any attitude (the mass swung over the top included) rests balanced (the statics' ``imbalance`` is zero:
+    on a level floor the mass straight below the centre, the motor axis tilted by ``phi`` with the same
+    heading; on a slope of up to 3 deg tilted uphill a little), on the sign of the given quaternion; a rest
+    attitude is its own."""
     q = np.asarray(q) / np.linalg.norm(q)
-    p = RollbotParams(phi=phi).vector()
-    rest = rest_attitude(q, phi)
-    assert np.linalg.norm(rest) == pytest.approx(1.0, abs=1e-12) and rest @ q >= 0
-    assert np.allclose(np.array(ca.DM(imbalance(ca.DM(rest), ca.DM(p)))).ravel(), 0.0, atol=1e-12)
-    axis, before = quat_to_matrix_np(rest)[:, 2], quat_to_matrix_np(q)[:, 2]
-    assert np.arccos(np.clip(axis[2], -1, 1)) == pytest.approx(phi, abs=1e-9)
+    level, sloped = RollbotParams(phi=phi), RollbotParams(phi=phi, slope=slope, slope_dir=slope_dir)
+    for params in (level, sloped):
+        rest = rest_attitude(q, params)
+        assert np.linalg.norm(rest) == pytest.approx(1.0, abs=1e-12) and rest @ q >= 0
+        assert np.allclose(np.array(ca.DM(imbalance(ca.DM(rest), ca.DM(params.vector())))).ravel(), 0.0, atol=1e-9)
+        assert np.allclose(rest_attitude(rest, params), rest, atol=1e-9)  # at rest already
+    rest, before = quat_to_matrix_np(rest_attitude(q, level))[:, 2], quat_to_matrix_np(q)[:, 2]
+    assert np.arccos(np.clip(rest[2], -1, 1)) == pytest.approx(phi, abs=1e-9)
     if np.hypot(before[0], before[1]) > 1e-6:
-        assert np.arctan2(axis[1], axis[0]) == pytest.approx(np.arctan2(before[1], before[0]), abs=1e-9)
-    at_rest = to_reduced(rest_state(RollbotParams(phi=phi), heading=float(q[1] * 3), theta=float(q[2] * 3)))[REDUCED.quaternion]
-    assert np.allclose(rest_attitude(at_rest, phi), at_rest, atol=1e-12)
+        assert np.arctan2(rest[1], rest[0]) == pytest.approx(np.arctan2(before[1], before[0]), abs=1e-9)
+    at_rest = to_reduced(rest_state(level, heading=float(q[1] * 3), theta=float(q[2] * 3)))[REDUCED.quaternion]
+    assert np.allclose(rest_attitude(at_rest, level), at_rest, atol=1e-12)

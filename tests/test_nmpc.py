@@ -137,14 +137,18 @@ def test_failed_solves_fall_back_without_crashing(monkeypatch):
 def test_a_failed_warm_start_is_solved_again_from_the_reference(monkeypatch):
     """Every third warm-started solve fails (an iterate gone bad): each is solved again from the reference in
     the same interval, and no solve instant is lost."""
-    calls = {"warm": 0}
+    calls = {"warm": 0, "failed": None, "retried": []}
     solve = RTISolver.solve
 
     def bad_warm_starts(self, z, Zr, Ur, p, warm=None, *args, **kwargs):
+        if calls["failed"] is not None:  # the call after an injected failure: the same instant, from the reference
+            calls["retried"].append(z is calls["failed"] and warm is None)
+            calls["failed"] = None
         x, lam, status, ok, seconds = solve(self, z, Zr, Ur, p, warm, *args, **kwargs)
         if warm is not None:
             calls["warm"] += 1
             if calls["warm"] % 3 == 0:
+                calls["failed"] = z
                 return x, lam, "injected failure", False, seconds
         return x, lam, status, ok, seconds
 
@@ -152,6 +156,7 @@ def test_a_failed_warm_start_is_solved_again_from_the_reference(monkeypatch):
     problem = load_problem(PROBLEMS / "circle_R050.toml").with_duration(6.0)
     m = run_problem(problem, "nmpc").metrics
     assert m["cold_retries"] >= 10 and m["failed_solves"] == 0 and m["fallback_shifted"] == 0
+    assert len(calls["retried"]) == m["cold_retries"] and all(calls["retried"])
     assert sum(n for status, n in m["solver_statuses"].items() if status.startswith("cold after injected failure")) \
         == m["cold_retries"]
 

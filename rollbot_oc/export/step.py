@@ -34,6 +34,8 @@ What it does, in order, as the NMPC's loop (``control.nmpc.loop``) does for a co
 6. fallback: a QP whose step violates its constraints (or is not finite) keeps the previous plan for up
    to ``max_failures - 1`` solves; then the motor's speed is ramped to zero at ``brake_accel`` for
    ``|speed| / brake_accel + h`` seconds and the next solve starts cold.  Once done the command is 0.
+   (Unlike the NMPC's loop, a failed warm-started QP is not solved once more from the reference in the
+   same period: that would double the step's worst case on the robot's processor.)
 
 ``status`` says which: ``STATUS`` names the codes.  The Python embedded controller
 (``export.embedded``), the C export (``export.project``) and the closed loop through C

@@ -636,6 +636,8 @@ class NMPC(ControllerBase):
             seconds += again
             compute += again if s.realtime else self.solver.modelled_time()
             status = f"cold after {first}: {status}"
+            if not ok:
+                self.warm = None  # no use starting from it again
         late = compute > (s.h if s.max_solve_time is None else s.max_solve_time)
         self.log["solve_times"].append(seconds)
         self.log["statuses"].append(status)
@@ -668,11 +670,12 @@ class NMPC(ControllerBase):
         self._pid_fresh = True
 
     def _rest(self, z) -> np.ndarray:
-        """The rest state nearest the reduced state ``z``: where it is, still, the mass hanging
-        (``dynamics.rest_attitude``; a reference or start with the mass swung up is no state to rest in)."""
+        """The rest state for the reduced state ``z``: where it is, still, balanced on the estimated floor with
+        its motor axis' heading (``dynamics.rest_attitude``; a reference or start with the mass swung up is no
+        state to rest in)."""
         rest = np.array(z, float)
         rest[REDUCED.velocity] = 0.0
-        rest[REDUCED.quaternion] = rest_attitude(rest[REDUCED.quaternion], self.params.phi)
+        rest[REDUCED.quaternion] = rest_attitude(rest[REDUCED.quaternion], self.estimator.params())
         return rest
 
     def _settle(self, Zr, t_now: float, z):

@@ -675,7 +675,10 @@ class NMPC(ControllerBase):
         state to rest in)."""
         rest = np.array(z, float)
         rest[REDUCED.velocity] = 0.0
-        rest[REDUCED.quaternion] = rest_attitude(rest[REDUCED.quaternion], self.estimator.params())
+        try:
+            rest[REDUCED.quaternion] = rest_attitude(rest[REDUCED.quaternion], self.estimator.params())
+        except ValueError:  # no balance on the floor estimated so far: the level floor's
+            rest[REDUCED.quaternion] = rest_attitude(rest[REDUCED.quaternion], self.params.replace(slope=0.0))
         return rest
 
     def _settle(self, Zr, t_now: float, z):

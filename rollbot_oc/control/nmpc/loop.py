@@ -670,15 +670,18 @@ class NMPC(ControllerBase):
         self._pid_fresh = True
 
     def _rest(self, z) -> np.ndarray:
-        """The rest state for the reduced state ``z``: where it is, still, balanced on the estimated floor with
-        its motor axis' heading (``dynamics.rest_attitude``; a reference or start with the mass swung up is no
-        state to rest in)."""
+        """The rest state for the reduced state ``z``: where it is, still; with its attitude if that is within
+        ``swung_angle`` of the balanced rest with its motor axis' heading, else (the mass swung up: no state to
+        rest in) that rest, on the estimated floor (``dynamics.rest_attitude``)."""
         rest = np.array(z, float)
         rest[REDUCED.velocity] = 0.0
+        q = rest[REDUCED.quaternion]
         try:
-            rest[REDUCED.quaternion] = rest_attitude(rest[REDUCED.quaternion], self.estimator.params())
+            balanced = rest_attitude(q, self.estimator.params())
         except ValueError:  # no balance on the floor estimated so far: the level floor's
-            rest[REDUCED.quaternion] = rest_attitude(rest[REDUCED.quaternion], self.params.replace(slope=0.0))
+            balanced = rest_attitude(q, self.params.replace(slope=0.0))
+        if 2.0 * math.acos(min(abs(float(balanced @ q)) / float(np.linalg.norm(q)), 1.0)) > self.settings.swung_angle:
+            rest[REDUCED.quaternion] = balanced
         return rest
 
     def _settle(self, Zr, t_now: float, z):

@@ -163,6 +163,11 @@ class NMPCSettings:
         stop is within this angle of the one it was planned from (and its
         position within ``replan_distance``); else the leg is planned from
         where the robot is, rad.
+    swung_angle : float
+        A robot brought to rest whose pendulum frame is turned more than
+        this from its balanced rest (``dynamics.rest_attitude``: the mass
+        swung up) is held at that rest, and its leg from rest planned from
+        it; nearer, it is held where it is, rad.
     finish_hold : float
         After the last stop is reached, the NMPC holds the robot there this
         long before it reports ``done`` (the run then ends), s.
@@ -284,6 +289,7 @@ class NMPCSettings:
     hold_radius: float = 0.05
     replan_distance: float = 0.15
     replan_angle: float = 0.2
+    swung_angle: float = 0.8
     finish_hold: float = 1.0
     gate_weight: float = 2e4
     replan_interval: float = 1.0
@@ -331,6 +337,8 @@ class NMPCSettings:
             raise ValueError(f"NMPC solver = {self.solver!r}; valid are 'ipopt', 'rti'")
         if not (isinstance(self.N, int) and self.N >= 2):
             raise ValueError(f"NMPC N = {self.N!r} must be a whole number >= 2")
+        if not (math.isfinite(self.swung_angle) and 0 < self.swung_angle <= math.pi):
+            raise ValueError(f"NMPC swung_angle = {self.swung_angle!r} rad is out of range: valid is (0, pi]")
         if not (math.isfinite(self.entry_shift_speed) and self.entry_shift_speed > 0):
             raise ValueError(f"NMPC entry_shift_speed = {self.entry_shift_speed!r} m/s must be positive")
         if not (math.isfinite(self.h) and 0 < self.h <= 0.5):

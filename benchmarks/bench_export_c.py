@@ -2,8 +2,8 @@
 
 1. Exports the N-shape (``rollbot-oc export-c``), builds it (``make``, -std=c99 -O2) and replays the whole
    recorded log three times (``replay``): the step's time over every period and over the solve instants
-   (one RTI each), median, p95 and max; the Python embedded controller (the same Function in CasADi's
-   virtual machine) on the same run for comparison.
+   (one RTI each), median, p95 and max, pinned to one core (``_one_core``); the Python embedded controller
+   (the same Function in CasADi's virtual machine) on the same run for comparison.
 2. Code and data: ``size`` of the objects, the context the step works in (bytes).
 3. With ``--ops`` (several minutes): the operations the step executes over the whole log, counted by
    valgrind's lackey on a build whose floating-point arithmetic is x87 (``-mfpmath=387``: every
@@ -14,6 +14,7 @@
 Run: .venv/bin/python benchmarks/bench_export_c.py [--ops] [--out DIR]
 """
 
+import os
 import re
 import statistics
 import subprocess
@@ -37,8 +38,16 @@ CLOCKS = {"Cortex-M7 (DP FPU), 480 MHz": (480e6, "m7"), "Cortex-M7 (DP FPU), 216
           "Cortex-M4F (SP FPU only), 168 MHz": (168e6, "m4")}
 
 
+def _one_core():
+    """Pin the replay to one core, as a control loop runs: a process that migrates between cores refills their
+    caches with its work arrays."""
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+
+
 def replay_times(folder: Path) -> dict:
-    out = subprocess.run(["./replay", "replay_log.txt"], cwd=folder, capture_output=True, text=True, check=True).stdout
+    out = subprocess.run(["./replay", "replay_log.txt"], cwd=folder, capture_output=True, text=True, check=True,
+                         preexec_fn=_one_core).stdout
     found = {}
     for what in ("all periods", "solve instants"):
         m = re.search(rf"step time {what} \((\d+)\): median (\S+) us, p95 (\S+) us, max (\S+) us, mean (\S+) us", out)

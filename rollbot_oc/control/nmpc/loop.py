@@ -385,10 +385,8 @@ class NMPC(ControllerBase):
         if pending is None or pending["plan"] is None:
             return False
         start = pending["plan"].z[:, 0]
-        cos_half = abs(float(start[REDUCED.quaternion] @ z[REDUCED.quaternion]))
-        turned = 2.0 * math.acos(min(cos_half, 1.0))
         near = np.linalg.norm(start[REDUCED.position] - z[REDUCED.position]) <= self.settings.replan_distance
-        return near and turned <= self.settings.replan_angle
+        return near and _turned(start[REDUCED.quaternion], z[REDUCED.quaternion]) <= self.settings.replan_angle
 
     def _take_pending(self, t_now: float) -> bool:
         """Follow the planned leg of the current segment if it is ready and meant to start by now."""
@@ -680,7 +678,7 @@ class NMPC(ControllerBase):
             balanced = rest_attitude(q, self.estimator.params())
         except ValueError:  # no balance on the floor estimated so far: the level floor's
             balanced = rest_attitude(q, self.params.replace(slope=0.0))
-        if 2.0 * math.acos(min(abs(float(balanced @ q)) / float(np.linalg.norm(q)), 1.0)) > self.settings.swung_angle:
+        if _turned(balanced, q) > self.settings.swung_angle:
             rest[REDUCED.quaternion] = balanced
         return rest
 
@@ -784,6 +782,12 @@ class NMPC(ControllerBase):
 @functools.lru_cache(maxsize=8)
 def _rest_to_rest(params: RollbotParams, settings: OCPSettings, constraints: tuple) -> RestToRest:
     return RestToRest(params, settings, constraints)
+
+
+def _turned(a, b) -> float:
+    """The angle between the attitudes of the quaternions ``a`` and ``b`` (either sign), rad."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return 2.0 * math.acos(min(abs(float(a @ b)) / float(np.linalg.norm(a) * np.linalg.norm(b)), 1.0))
 
 
 def _revolving_centre(ramp: Plan, Omega: float) -> np.ndarray:

@@ -129,8 +129,9 @@ def main():
           f"{ops['f64_ops']:,} double-precision operations (with {ops['f64_loads']:,} loads and "
           f"{ops['f64_stores']:,} stores); includes reading the log and the replay's own work")
     per = {k: v / solves for k, v in ops.items()}
-    print(f"  per solve instant (the whole log's count over its {solves} solve instants, the 9 cheap periods between "
-          f"included): {per['instrs'] / 1e6:.2f} M instructions, {per['f64_ops'] / 1e6:.2f} M double operations")
+    between = result.step.every - 1
+    print(f"  per solve instant (the whole log's count over its {solves} solve instants, the {between} cheap periods "
+          f"between included): {per['instrs'] / 1e6:.2f} M instructions, {per['f64_ops'] / 1e6:.2f} M double operations")
     other = per["instrs"] - per["f64_ops"] - per["f64_loads"] - per["f64_stores"]
     fp = per["f64_ops"]
     cycles = {"m7": THUMB_PER_X86 * (other + per["f64_loads"] + per["f64_stores"]) * M7_CPI + M7_FP64 * fp,
@@ -145,7 +146,7 @@ def main():
         mean = 1e3 * cycles[core] / hz
         print(f"  {name:36s} {cycles[core] / 1e6:7.1f} M cycles per solve instant on average = {mean:7.1f} ms, "
               f"median about {ratio * mean:7.1f} ms, max about {host[3] / host[4] * mean:7.1f} ms "
-              "(the interval is 100 ms)")
+              f"(the interval is {1e3 * result.step.h:.0f} ms)")
 
 
 if __name__ == "__main__":

@@ -62,9 +62,10 @@ from rollbot_oc.rotations import quat_multiply
 __all__ = ["EMBEDDED_SETTINGS", "STATUS", "Memory", "StepFunction", "control_step", "HISTORY"]
 
 # The robot's processor has a tenth of a desktop core's speed: the exported step keeps the NMPC's weights, limits
-# and fallbacks with 30 intervals of 0.1 s (the Python NMPC's 60 of 0.05 s follow its plans closer at twice the
-# cost per solve and twice the solves; ``benchmarks/bench_export_c_result.txt`` measures this one).
-EMBEDDED_SETTINGS = NMPCSettings(N=30, h=0.1, substeps=2, max_failures=3)
+# and fallbacks over the same 3 s horizon with 25 intervals of 0.12 s and one integration step each (the Python
+# NMPC's 60 of 0.05 s with two steps each follow its plans closer at several times the cost per solve and 2.4
+# times the solves; ``benchmarks/bench_export_c_result.txt`` measures this one against 30 of 0.1 s with two).
+EMBEDDED_SETTINGS = NMPCSettings(N=25, h=0.12, substeps=1, max_failures=3)
 
 HISTORY = 4  # commands remembered: delay compensation over up to HISTORY - 1 periods of latency
 STATUS = {0: "solved", 1: "between solves", 2: "QP failed: previous plan", 3: "brake", 4: "done"}

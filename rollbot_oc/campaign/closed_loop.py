@@ -39,7 +39,7 @@ COURSE_COLUMNS = ("n_stops", "length", "duration", "slope_deg", "slope_dir_deg",
                   "k0_error", "robot_draws")
 # run metrics copied from the run's metrics when the controller reports them (the NMPC's solver counts)
 SOLVER_COLUMNS = ("failed_solves", "cold_retries", "late_solves", "fallback_shifted", "fallback_brake", "fallback_pid",
-                  "brakes", "stop_replans", "stones", "plan_failures", "plan_time")
+                  "brakes", "stop_replans", "stones", "plan_failures", "plan_time", "plan_wait", "stop_wait")
 
 
 @register

@@ -424,8 +424,8 @@ class NMPC(ControllerBase):
             self._gate_plans = []  # every plan through the gates, for the report
             self.log = {"solve_times": [], "statuses": [], "fallback_shifted": 0, "fallback_pid": 0,
                         "fallback_brake": 0, "late": 0, "failed": 0, "tilt": [], "replans": 0, "plan_solve_times": [],
-                        "plan_failures": 0, "plan_wait": 0.0, "brakes": 0, "plan_late": 0, "stones": 0, "unfit": 0,
-                        "cold_retries": 0}
+                        "plan_failures": 0, "plan_wait": 0.0, "stop_wait": 0.0, "brakes": 0, "plan_late": 0,
+                        "stones": 0, "unfit": 0, "cold_retries": 0}
         self.k = 0
         self.warm = None
         self.current = None  # (U, index of the interval in use)
@@ -526,6 +526,8 @@ class NMPC(ControllerBase):
         local = t_now - self.segment_start
         if self._braking_since is None and local >= s.plan_ahead * plan.T and t_now >= s.tilt_settle - 1e-9:
             self._plan_ahead(t_now, plan)  # (on the tilt estimated by then)
+        if self._braking_since is None and not reached and local >= plan.T - 1e-9:
+            self.log["stop_wait"] += s.h  # the leg has ended, its stop is not reached yet (not at rest, or away)
         if reached and local >= plan.T - 1e-9:
             ahead = self._pending.get(i + 1)
             if ahead is not None and t_now < ahead["ready"] - 1e-9:
@@ -773,6 +775,7 @@ class NMPC(ControllerBase):
             "plan_failures": self.log["plan_failures"],
             "plan_late": self.log["plan_late"],
             "plan_wait": self.log["plan_wait"],
+            "stop_wait": self.log["stop_wait"],
             "plan_solve_time_median": float(np.median(plan_times)),
             "plan_solve_time_max": float(plan_times.max()),
             "tilt_estimate": self.estimator.tilt.tolist(),

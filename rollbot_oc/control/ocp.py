@@ -263,9 +263,10 @@ class _MinTimeOCP:
         return self._routes[key]
 
     def _solve(self, z0, parameters: dict, guess: Plan, variables=None, duration: float | None = None, tilt=None,
-               motor_scale: float = 1.0) -> Plan:
+               motor_scale: float = 1.0, model=None) -> Plan:
         """Solve from a guess; ``duration`` (s) fixes the time (then the effort is what is minimised);
-        ``tilt`` (2,) replaces the parameters' floor tilt vector (an estimated slope); ``motor_scale`` in
+        ``model`` (NP,) is the parameter vector to plan with (a learned model; the parameters' own by default);
+        ``tilt`` (2,) replaces its floor tilt vector (an estimated slope); ``motor_scale`` in
         (0, 1] scales the plan's driving-speed and acceleration limits (those of the parameter vector)."""
         if not 0.0 < motor_scale <= 1.0:
             raise ValueError(f"motor_scale = {motor_scale!r} must be in (0, 1]")
@@ -275,7 +276,7 @@ class _MinTimeOCP:
             guess = guess.resample(self.settings.N)
         w0 = layout.pack(guess.z, guess.u[None, :], [duration or guess.T], variables,
                          template=route.transcription.default_guess())
-        p = self.params.vector()
+        p = self.params.vector() if model is None else np.array(model, float)
         if tilt is not None:
             p[TILT] = tilt
         p[PARAM_INDEX["max_speed"]] *= motor_scale
@@ -313,13 +314,14 @@ class RestToRest(_MinTimeOCP):
         ocp.subject_to(at_rest(ocp), at="end")
 
     def solve(self, start, goal, guess: Plan | None = None, duration: float | None = None, tilt=None,
-              motor_scale: float = 1.0) -> Plan:
+              motor_scale: float = 1.0, model=None) -> Plan:
         """Plan from ``start`` (full state (11,) or reduced (10,)) to rest at ``goal`` (m).
 
         Minimum time, or with ``duration`` (s) given, the least motor effort in that time.  ``tilt``
         (2,), the floor's tilt vector (in-plane gravity per g), replaces the parameters' slope: the plan
         then ends balanced on that floor.  ``motor_scale`` in (0, 1] scales the plan's driving-speed and
-        acceleration limits (a gentler plan, more margin for the feedback).
+        acceleration limits (a gentler plan, more margin for the feedback).  ``model`` (NP,), the parameter
+        vector to plan with (a learned model, with its tilt), replaces the parameters' (``params.vector()``).
 
         Raises
         ------
@@ -329,19 +331,20 @@ class RestToRest(_MinTimeOCP):
         z0 = _reduced(start)
         goal = np.asarray(goal, float)
         guess = guess or quasi_stable_guess(z0, goal, self.params, self.settings.N)
-        plan = self._solve(z0, {"goal": goal}, guess, duration=duration, tilt=tilt, motor_scale=motor_scale)
+        plan = self._solve(z0, {"goal": goal}, guess, duration=duration, tilt=tilt, motor_scale=motor_scale,
+                           model=model)
         plan.extra = {"goal": goal.tolist()}
         if not plan.success:
             raise SolveFailed(f"rest-to-rest plan to {goal.tolist()}", plan.status, plan)
         return plan
 
-    def fastest(self, start, goal, starts: int = 3, tilt=None, motor_scale: float = 1.0) -> Plan:
+    def fastest(self, start, goal, starts: int = 3, tilt=None, motor_scale: float = 1.0, model=None) -> Plan:
         """The fastest of the minimum-time plans found from the ``starts`` best quasi-stable guesses.
 
         A minimum-time leg has local optima, and the guess decides which one
         IPOPT finds; a few starts make the result much less a matter of luck.
         The plan's ``iterations`` and ``solve_time`` are the totals over the
-        starts; ``tilt`` and ``motor_scale`` as for ``solve``.
+        starts; ``tilt``, ``motor_scale`` and ``model`` as for ``solve``.
 
         Raises
         ------
@@ -353,7 +356,7 @@ class RestToRest(_MinTimeOCP):
         best, failure, iterations, seconds = None, None, 0, 0.0
         for guess in quasi_stable_guesses(z0, goal, self.params, self.settings.N, starts):
             try:
-                plan = self.solve(z0, goal, guess=guess, tilt=tilt, motor_scale=motor_scale)
+                plan = self.solve(z0, goal, guess=guess, tilt=tilt, motor_scale=motor_scale, model=model)
             except SolveFailed as exc:
                 failure, plan = exc, exc.plan
             iterations += plan.iterations if plan is not None else 0

@@ -1,4 +1,5 @@
-"""Offset-free NMPC: a Kalman filter on the floor's tilt from the shell's measured angular velocity."""
+"""Offset-free, model-learning NMPC: a Kalman filter on the floor's tilt, and on scale factors of the model's
+masses and damping, from the shell's measured angular velocity."""
 
 from __future__ import annotations
 
@@ -11,74 +12,110 @@ import numpy as np
 from rollbot_oc.ocp import rollbot_model
 from rollbot_oc.dynamics import NZ, REDUCED
 from rollbot_oc.fastcall import FastFunction
-from rollbot_oc.params import NP, TILT, RollbotParams
+from rollbot_oc.params import NP, PARAM_INDEX, TILT, RollbotParams
 
-__all__ = ["TiltEstimator"]
+__all__ = ["TiltEstimator", "LEARNABLE"]
+
+# parameters whose scale factors the filter may learn: the shell's mass, the pendulum's mass, the rolling damping
+# (those a robot is weighed and measured with least exactly; its geometry and motor limits are known)
+LEARNABLE = ("M", "m", "k0", "I")
+SCALE_RANGE = (0.7, 1.3)  # a learned scale factor stays within 30 % of the nominal model
 
 
 @functools.lru_cache(maxsize=None)
-def _one_step(substeps: int, dt: float) -> ca.Function:
-    """``(z, u, p) -> (z_next, d omega_next / d tilt)`` over one control period, for the estimator."""
+def _one_step(substeps: int, dt: float, names: tuple = ()) -> ca.Function:
+    """``(z, u, p) -> (z_next, d omega_next / d (tilt, p[names]))`` over one control period, for the estimator."""
     F = rollbot_model().interval(substeps)  # the model every OCP of the toolkit predicts with
     z, u, p = ca.SX.sym("z", NZ), ca.SX.sym("u"), ca.SX.sym("p", NP)
     zn = F(z, u, dt, p)
-    return ca.Function("one_step", [z, u, p], [zn, ca.jacobian(zn[REDUCED.omega], p)[:, TILT]])
+    columns = list(range(TILT.start, TILT.stop)) + [PARAM_INDEX[name] for name in names]
+    return ca.Function("one_step", [z, u, p], [zn, ca.jacobian(zn[REDUCED.omega], p)[:, columns]])
 
 
 class TiltEstimator:
-    """Kalman filter on the floor's tilt vector (in-plane gravity per g) from the shell's angular velocity.
+    """Kalman filter on the floor's tilt vector (in-plane gravity per g) from the shell's angular velocity, and
+    optionally on scale factors of model parameters (``learn``).
+
+    The state is the tilt (2) and one factor per learned parameter (the model's value is its nominal times the
+    factor); the measurement is the shell's angular velocity one period after the last, against the model's
+    prediction from the state before and the command; the Jacobian of that prediction comes from AD.
 
     Parameters
     ----------
     params : RollbotParams
-        Nominal model (its tilt is the prior).
+        Nominal model (its tilt is the prior; its masses and damping the learned factors' 1).
     dt : float
         Control period, s.
     process_noise : float
-        Random-walk rate of the tilt, 1/sqrt(s).
+        Random-walk rate of the tilt, 1/sqrt(s) (the factors are constants: no random walk).
     gyro_sigma : float
         One-step prediction error of the angular velocity, rad/s.
     model_error : float
         Relative error of the model's predicted change of the angular velocity
-        (masses, damping): in motion the prediction error grows with the change,
+        (what the filter does not learn): in motion the prediction error grows with the change,
         so the filter learns the floor at rest and near it, not the model's
         errors in hard manoeuvres.
+    learn : sequence of str
+        Parameters of ``LEARNABLE`` whose scale factors are learned (none by default: the tilt alone).
+    learn_sigma : float
+        Prior standard deviation of each factor (relative error of the nominal value).
     """
 
     def __init__(self, params: RollbotParams, dt: float, process_noise: float = 0.01, gyro_sigma: float = 2e-3,
-                 model_error: float = 0.1):
+                 model_error: float = 0.1, learn=(), learn_sigma: float = 0.1):
+        unknown = [name for name in learn if name not in LEARNABLE]
+        if unknown:
+            raise ValueError(f"cannot learn {', '.join(map(repr, unknown))}: valid are {', '.join(LEARNABLE)}")
+        if not (math.isfinite(learn_sigma) and 0 < learn_sigma <= 0.3):
+            raise ValueError(f"learn_sigma = {learn_sigma!r} is out of range: valid is (0, 0.3]")
         self.p = params.vector()
         self.dt = dt
         self.q = process_noise**2 * dt
         self.r = gyro_sigma**2
         self.model_error = model_error
-        self.step = FastFunction(_one_step(1, dt))
+        self.learn = tuple(learn)
+        self.learn_sigma = learn_sigma
+        self._columns = [PARAM_INDEX[name] for name in self.learn]
+        self.step = FastFunction(_one_step(1, dt, self.learn))
         self.reset()
 
     def reset(self):
-        """Back to the prior (the nominal tilt, a 2 deg standard deviation)."""
+        """Back to the prior (the nominal tilt, a 2 deg standard deviation; the nominal model)."""
         self.tilt = self.p[TILT].copy()
-        self.P = np.eye(2) * math.radians(2.0) ** 2
+        self.scales = np.ones(len(self.learn))
+        self._P = np.diag([math.radians(2.0) ** 2] * 2 + [self.learn_sigma**2] * len(self.learn))
+
+    @property
+    def P(self) -> np.ndarray:
+        """Covariance of the tilt estimate (2, 2)."""
+        return self._P[:2, :2]
 
     def update(self, z_prev, u_prev: float, z_now) -> np.ndarray:
         """Fold in one period: state ``z_prev``, command ``u_prev`` (rad/s^2), then state ``z_now``."""
-        p = self.p.copy()
-        p[TILT] = self.tilt
-        zn, H = self.step(z_prev, u_prev, p)
-        H = H.reshape(2, 3).T  # the buffer is column-major
+        n = 2 + len(self.learn)
+        zn, J = self.step(z_prev, u_prev, self.params())
+        J = J.reshape(n, 3).T  # the buffer is column-major
+        H = np.column_stack([J[:, :2], J[:, 2:] * self.p[self._columns]])  # per unit of each factor
         residual = np.asarray(z_now)[REDUCED.omega] - zn[REDUCED.omega]
         if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(H))):
             return self.tilt  # nothing to learn from a broken prediction
-        self.P = self.P + np.eye(2) * self.q
+        P = self._P + np.diag([self.q] * 2 + [0.0] * len(self.learn))
         change = float(np.linalg.norm(zn[REDUCED.omega] - np.asarray(z_prev)[REDUCED.omega]))
-        S = H @ self.P @ H.T + np.eye(3) * (self.r + (self.model_error * change) ** 2)
-        K = np.linalg.solve(S, H @ self.P).T  # S is symmetric positive definite (r > 0)
-        self.tilt = np.clip(self.tilt + K @ residual, -0.5, 0.5)
-        self.P = (np.eye(2) - K @ H) @ self.P
+        S = H @ P @ H.T + np.eye(3) * (self.r + (self.model_error * change) ** 2)
+        K = np.linalg.solve(S, H @ P).T  # S is symmetric positive definite (r > 0)
+        x = np.concatenate([self.tilt, self.scales]) + K @ residual
+        self.tilt = np.clip(x[:2], -0.5, 0.5)
+        self.scales = np.clip(x[2:], *SCALE_RANGE)
+        self._P = (np.eye(n) - K @ H) @ P
         return self.tilt
 
     def params(self) -> np.ndarray:
-        """The model parameter vector with the estimated tilt."""
+        """The model parameter vector with the estimated tilt and the learned factors."""
         p = self.p.copy()
         p[TILT] = self.tilt
+        p[self._columns] *= self.scales
         return p
+
+    def learned(self) -> dict:
+        """The learned scale factors by parameter name."""
+        return {name: float(scale) for name, scale in zip(self.learn, self.scales)}

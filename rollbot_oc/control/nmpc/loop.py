@@ -61,7 +61,7 @@ class NMPC(ControllerBase):
         self._track_diag = self.weights.diagonal(s.N)
         self._brake_diag = s.brake_weights.diagonal(s.N)
         self.estimator = TiltEstimator(self.params, dt, s.tilt_process_noise, s.gyro_sigma,
-                                       s.tilt_model_error)
+                                       s.tilt_model_error, s.learn if s.estimate_tilt else (), s.learn_sigma)
         # the legs' planner, built once (its floor tilt is set per plan from the estimate)
         level = self.params.replace(slope=0.0)
         self._legs = _rest_to_rest(level, s.plan, tuple(s.constraints)) if mission.stops else None
@@ -295,12 +295,12 @@ class NMPC(ControllerBase):
             self._refine_at = max(self._planner_free, t_now + self.settings.h)  # failed: again once computed
 
     def _launch(self, segment: int, t_now: float, t_start, z_start, guess=None):
-        """Plan leg ``segment`` from ``z_start`` on the estimated floor; it may be used once its modelled
-        compute time has passed, and is followed from the absolute time ``t_start`` (s; None: from the
-        moment the stop before it is reached)."""
+        """Plan leg ``segment`` from ``z_start`` on the estimated floor with the learned model
+        (``TiltEstimator``); it may be used once its modelled compute time has passed, and is followed from the
+        absolute time ``t_start`` (s; None: from the moment the stop before it is reached)."""
         s, stop = self.settings, self.mission.stops[segment]
         wall = time.perf_counter()
-        tilt = self.estimator.tilt.copy()
+        model = self.estimator.params()  # the estimated floor and the learned masses and damping
         scale = max(s.caution_floor, s.caution ** self.log["brakes"])  # from rest: gentler after recoveries
         goals = [np.asarray(stop, float)]
         if guess is None:  # from rest: a stepping stone if the stop cannot be planned
@@ -310,8 +310,8 @@ class NMPC(ControllerBase):
                 goals.append(goals[0] - towards * (1.0 - s.stone_distance / distance))
 
         def attempt(goal):  # a refinement from its guess, or the fastest of several starts
-            return self._legs.solve(z_start, goal, guess=guess, tilt=tilt) if guess is not None \
-                else self._legs.fastest(z_start, goal, s.plan_starts, tilt=tilt, motor_scale=scale)
+            return self._legs.solve(z_start, goal, guess=guess, model=model) if guess is not None \
+                else self._legs.fastest(z_start, goal, s.plan_starts, motor_scale=scale, model=model)
 
         plan, iterations, tried = self._first_converged([functools.partial(attempt, goal) for goal in goals])
         goal = goals[tried - 1]
@@ -779,6 +779,7 @@ class NMPC(ControllerBase):
             "plan_solve_time_median": float(np.median(plan_times)),
             "plan_solve_time_max": float(plan_times.max()),
             "tilt_estimate": self.estimator.tilt.tolist(),
+            "model_learned": self.estimator.learned(),
         }
 
 

@@ -129,6 +129,14 @@ class NMPCSettings:
         How long the PID keeps control after taking over, s.
     estimate_tilt : bool
         Estimate the floor tilt (offset-free); off gives the nominal model.
+    learn : tuple of str
+        Parameters (of ``estimation.LEARNABLE``) whose scale factors the tilt filter
+        learns as the robot moves, used by every later plan and solve (with
+        ``estimate_tilt``): the shell's mass ``M``, the pendulum's ``m`` and the
+        damping ``k0`` by default; ``()`` keeps the nominal model.
+    learn_sigma : float
+        Prior standard deviation of each learned factor (0.1: the model may be
+        10 % off).
     tilt_process_noise : float
         Random-walk rate of the tilt estimate, 1/sqrt(s).
     gyro_sigma : float
@@ -282,6 +290,8 @@ class NMPCSettings:
     fallback: str = "brake"
     pid_time: float = 2.0
     estimate_tilt: bool = True
+    learn: tuple = ("M", "m", "k0")
+    learn_sigma: float = 0.1
     tilt_process_noise: float = 0.01
     gyro_sigma: float = 2e-3
     tilt_model_error: float = 0.1

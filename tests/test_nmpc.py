@@ -11,7 +11,7 @@ from rollbot_oc.codegen import compiler
 from rollbot_oc.control.missions import Waypoints
 from rollbot_oc.control.nmpc import NMPC, NMPCSettings, RTISolver, TiltEstimator
 from rollbot_oc.control.ocp import RestToRest, SolveFailed
-from rollbot_oc.params import RollbotParams
+from rollbot_oc.params import PARAM_INDEX, RollbotParams
 from rollbot_oc.problems import load_problem, make_controller, run_problem
 
 PROBLEMS = Path(__file__).parent.parent / "problems"
@@ -205,6 +205,40 @@ def test_estimator_and_settings_validation():
         NMPC(Waypoints(([0.0, 0.0],)), settings=NMPCSettings(h=0.015))
     est = TiltEstimator(RollbotParams(), 0.01)
     assert np.allclose(est.tilt, 0.0)
+
+
+def _plant_with(nominal: RollbotParams, factors: dict) -> RollbotParams:
+    """``nominal`` with its shell mass (``M``: both ``M_s`` and ``m_b``), ``m`` or ``k0`` scaled by ``factors``."""
+    scaled = {"m": nominal.m * factors.get("m", 1.0), "k0": nominal.k0 * factors.get("k0", 1.0)}
+    f = factors.get("M", 1.0)
+    return nominal.replace(M_s=nominal.M_s * f, m_b=nominal.m_b * f, **scaled)
+
+
+@pytest.mark.parametrize("factors", [{}, {"M": 0.9}, {"m": 1.1, "k0": 0.92}])
+def test_the_filter_learns_the_masses_and_damping_the_robot_moves_with(factors):
+    """The plant (the full model, ``simulate``) differs from the filter's model by ``factors``; driven open loop
+    by a motor-acceleration sweep and measured exactly, the filter learns each factor within 3 % (measured:
+    within 0.6 % for the masses, 2 % for the damping, which the sweep excites least; the exact model's stay
+    within 0.5 % of 1): what the NMPC then plans and solves with."""
+    from rollbot_oc.dynamics import rest_state, to_reduced
+    from rollbot_oc.simulate import simulate
+
+    nominal = RollbotParams(slope=0.0)
+    plant = _plant_with(nominal, factors)
+    result = simulate(rest_state(plant), 8.0, params=plant,
+                      accel=lambda t: 12.0 * math.sin(2 * math.pi * 0.4 * t) * min(t, 1.0))
+    est = TiltEstimator(nominal, 0.01, learn=("M", "m", "k0"))
+    for k in range(result.command.size):
+        est.update(to_reduced(result.x[:, k]), float(result.command[k]), to_reduced(result.x[:, k + 1]))
+    learned = est.learned()
+    for name in ("M", "m", "k0"):
+        truth = factors.get(name, 1.0)
+        assert learned[name] == pytest.approx(truth, abs=0.03 if factors else 0.005), (name, learned)
+    assert np.allclose(est.tilt, 0.0, atol=math.radians(0.2))
+    p = est.params()
+    assert p[PARAM_INDEX["M"]] == pytest.approx(nominal.M * learned["M"])
+    with pytest.raises(ValueError, match="cannot learn 'mu'"):
+        TiltEstimator(nominal, 0.01, learn=("mu",))
 
 
 TIMING = ("step_time_min", "step_time_median", "step_time_p95", "step_time_max", "solve_time_min",

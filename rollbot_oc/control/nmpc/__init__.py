@@ -32,10 +32,13 @@ Structure (do-mpc's separation: model, controller, simulator over one model):
   plan, with the motor's torque, speed and acceleration limits and the
   contact margins as constraints.  The first interval's motor acceleration
   is applied (the plant's motor follows it at 100 Hz).
-* **Offset-free**: a Kalman filter estimates the floor's tilt vector from the
-  mismatch between the measured and the predicted shell angular velocity
-  (its Jacobian by AD); the prediction model uses the estimate.  It absorbs
-  the slope and, with them, other steady model errors (masses, damping).
+* **Offset-free, and learning its model**: a Kalman filter estimates the
+  floor's tilt vector and scale factors of the shell's mass, the pendulum's
+  mass and the rolling damping (``NMPCSettings.learn``) from the mismatch
+  between the measured and the predicted shell angular velocity (its
+  Jacobian by AD); every later solve, rest and leg plan uses the estimate.
+  (A robot 10 % off its model arrives at its stops swaying sideways, a mode
+  its motor cannot damp at rest: learning the model is what stops that.)
 * **Delay compensation**: a measurement that is ``L`` periods old is
   predicted forward over the commands applied since.
 * **Warm start**: the previous solution shifted by one interval (primal and,
@@ -63,7 +66,7 @@ default is chosen from it.
 
 The package follows those concepts, one module each: ``settings`` (weights,
 horizon, limits, fallbacks), ``tracking`` (the tracking problem and its
-solvers), ``estimation`` (the floor-tilt filter), ``reference`` (what is
+solvers), ``estimation`` (the filter on the floor's tilt and the model's masses and damping), ``reference`` (what is
 tracked: legs, holds, orbits), ``gates`` (the plan through gates) and ``loop`` (the controller and its
 fallbacks).  What the mission asks (stops, an orbit, gates) the loop learns from the mission's own answers
 (``rollbot_oc.missions``).

@@ -203,8 +203,12 @@ def test_estimator_and_settings_validation():
         NMPCSettings(solver="fatrop")
     with pytest.raises(ValueError, match="h = 0.015"):
         NMPC(Waypoints(([0.0, 0.0],)), settings=NMPCSettings(h=0.015))
+    with pytest.raises(ValueError, match="cannot learn 'R'"):
+        NMPCSettings(learn=("M", "R"))
+    with pytest.raises(ValueError, match="learn_sigma = 0.5"):
+        NMPCSettings(learn_sigma=0.5)
     est = TiltEstimator(RollbotParams(), 0.01)
-    assert np.allclose(est.tilt, 0.0)
+    assert np.allclose(est.tilt, 0.0) and est.learned() == {}
 
 
 def _plant_with(nominal: RollbotParams, factors: dict) -> RollbotParams:

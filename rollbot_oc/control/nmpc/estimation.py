@@ -59,13 +59,10 @@ class TiltEstimator:
         Parameters of ``LEARNABLE`` whose scale factors are learned (none by default: the tilt alone).
     learn_sigma : float
         Prior standard deviation of each factor (relative error of the nominal value).
-    learn_change : float
-        Least predicted change of the angular velocity over a period, rad/s, for the factors to be learned
-        from it (the tilt is learned from every period).
     """
 
     def __init__(self, params: RollbotParams, dt: float, process_noise: float = 0.01, gyro_sigma: float = 2e-3,
-                 model_error: float = 0.1, learn=(), learn_sigma: float = 0.1, learn_change: float = 0.01):
+                 model_error: float = 0.1, learn=(), learn_sigma: float = 0.1):
         unknown = [name for name in learn if name not in LEARNABLE]
         if unknown:
             raise ValueError(f"cannot learn {', '.join(map(repr, unknown))}: valid are {', '.join(LEARNABLE)}")
@@ -78,7 +75,6 @@ class TiltEstimator:
         self.model_error = model_error
         self.learn = tuple(learn)
         self.learn_sigma = learn_sigma
-        self.learn_change = learn_change
         self._columns = [PARAM_INDEX[name] for name in self.learn]
         self.step = FastFunction(_one_step(1, dt, self.learn))
         self.reset()
@@ -105,21 +101,12 @@ class TiltEstimator:
             return self.tilt  # nothing to learn from a broken prediction
         P = self._P + np.diag([self.q] * 2 + [0.0] * len(self.learn))
         change = float(np.linalg.norm(zn[REDUCED.omega] - np.asarray(z_prev)[REDUCED.omega]))
-        # the factors are learned from motion only: near rest the measurement noise dominates the little the
-        # factors change, and in the regressor it biases them (towards less damping and mass)
-        k = n if change >= self.learn_change else 2
-        HP = H[:, :k] @ P[:k, :]  # (3, n): the measurement's covariance with the state (held factors: no H)
-        S = HP[:, :k] @ H[:, :k].T + np.eye(3) * (self.r + (self.model_error * change) ** 2)
-        K = np.linalg.solve(S, HP).T  # S is symmetric positive definite (r > 0); (n, 3)
-        if k == n:
-            P = P - K @ HP
-        else:  # the factors are held (a Schmidt, "consider", update: no gain on them, their covariance kept)
-            K[k:] = 0.0
-            P = P - K @ HP - HP.T @ K.T + K @ S @ K.T
+        S = H @ P @ H.T + np.eye(3) * (self.r + (self.model_error * change) ** 2)
+        K = np.linalg.solve(S, H @ P).T  # S is symmetric positive definite (r > 0)
         x = np.concatenate([self.tilt, self.scales]) + K @ residual
         self.tilt = np.clip(x[:2], -0.5, 0.5)
         self.scales = np.clip(x[2:], *SCALE_RANGE)
-        self._P = P if n == 2 else 0.5 * (P + P.T)  # (rounding would make a larger covariance lose symmetry)
+        self._P = (np.eye(n) - K @ H) @ P
         return self.tilt
 
     def params(self) -> np.ndarray:

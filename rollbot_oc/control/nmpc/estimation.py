@@ -14,12 +14,23 @@ from rollbot_oc.dynamics import NZ, REDUCED
 from rollbot_oc.fastcall import FastFunction
 from rollbot_oc.params import NP, PARAM_INDEX, TILT, RollbotParams
 
-__all__ = ["TiltEstimator", "LEARNABLE"]
+__all__ = ["TiltEstimator", "LEARNABLE", "check_learning"]
 
 # parameters whose scale factors the filter may learn: the shell's mass, the pendulum's mass, the rolling damping
-# (those a robot is weighed and measured with least exactly; its geometry and motor limits are known)
+# and the shell's inertia (those a robot is weighed and measured with least exactly; its geometry and motor limits
+# are known)
 LEARNABLE = ("M", "m", "k0", "I")
 SCALE_RANGE = (0.7, 1.3)  # a learned scale factor stays within 30 % of the nominal model
+
+
+def check_learning(learn, learn_sigma: float, what: str = "") -> None:
+    """Raise ``ValueError`` (one line, prefixed by ``what``) unless ``learn`` names only ``LEARNABLE`` parameters
+    and ``learn_sigma`` is in (0, 0.3]."""
+    unknown = [name for name in learn if name not in LEARNABLE]
+    if unknown:
+        raise ValueError(f"{what}cannot learn {', '.join(map(repr, unknown))}: valid are {', '.join(LEARNABLE)}")
+    if not (math.isfinite(learn_sigma) and 0 < learn_sigma <= 0.3):
+        raise ValueError(f"{what}learn_sigma = {learn_sigma!r} is out of range: valid is (0, 0.3]")
 
 
 @functools.lru_cache(maxsize=None)
@@ -63,11 +74,7 @@ class TiltEstimator:
 
     def __init__(self, params: RollbotParams, dt: float, process_noise: float = 0.01, gyro_sigma: float = 2e-3,
                  model_error: float = 0.1, learn=(), learn_sigma: float = 0.1):
-        unknown = [name for name in learn if name not in LEARNABLE]
-        if unknown:
-            raise ValueError(f"cannot learn {', '.join(map(repr, unknown))}: valid are {', '.join(LEARNABLE)}")
-        if not (math.isfinite(learn_sigma) and 0 < learn_sigma <= 0.3):
-            raise ValueError(f"learn_sigma = {learn_sigma!r} is out of range: valid is (0, 0.3]")
+        check_learning(learn, learn_sigma)
         self.p = params.vector()
         self.dt = dt
         self.q = process_noise**2 * dt

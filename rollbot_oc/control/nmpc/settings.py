@@ -347,15 +347,10 @@ class NMPCSettings:
             raise ValueError(f"NMPC solver = {self.solver!r}; valid are 'ipopt', 'rti'")
         if not (isinstance(self.N, int) and self.N >= 2):
             raise ValueError(f"NMPC N = {self.N!r} must be a whole number >= 2")
-        from rollbot_oc.control.nmpc.estimation import LEARNABLE
+        from rollbot_oc.control.nmpc.estimation import check_learning  # (estimation needs no settings)
 
         object.__setattr__(self, "learn", tuple(self.learn))
-        unknown = [name for name in self.learn if name not in LEARNABLE]
-        if unknown:
-            raise ValueError(f"NMPC learn = {list(self.learn)!r}: cannot learn {', '.join(map(repr, unknown))}; "
-                             f"valid are {', '.join(LEARNABLE)}")
-        if not (math.isfinite(self.learn_sigma) and 0 < self.learn_sigma <= 0.3):
-            raise ValueError(f"NMPC learn_sigma = {self.learn_sigma!r} is out of range: valid is (0, 0.3]")
+        check_learning(self.learn, self.learn_sigma, "NMPC ")
         if not (math.isfinite(self.swung_angle) and 0 < self.swung_angle <= math.pi):
             raise ValueError(f"NMPC swung_angle = {self.swung_angle!r} rad is out of range: valid is (0, pi]")
         if not (math.isfinite(self.entry_shift_speed) and self.entry_shift_speed > 0):

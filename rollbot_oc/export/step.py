@@ -15,8 +15,8 @@
 What it does, in order, as the NMPC's loop (``control.nmpc.loop``) does for a course of stops:
 
 1. the tilt estimator's update (``control.nmpc.estimation.TiltEstimator.update``, the same filter written
-   symbolically with the same one-step model and noise settings) when the measurement follows the
-   previous one;
+   symbolically with the same one-step model and noise settings, on the tilt alone and from the measured
+   attitude: ``attitude_gain`` 1, no learned factors) when the measurement follows the previous one;
 2. delay compensation: the measurement predicted forward over the commands issued since it was taken
    (up to ``HISTORY - 1`` periods);
 3. the stop in progress watched on the measurement (``missions.stops.StopMonitor``'s rule); at a solve
@@ -278,7 +278,9 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     every = max(1, int(round(s.h / dt)))
     if abs(every * dt - s.h) > 1e-9:
         raise ValueError(f"NMPC h = {s.h} s must be a whole number of control periods dt = {dt} s")
-    estimator = TiltEstimator(params, dt, s.tilt_process_noise, s.gyro_sigma, s.tilt_model_error)
+    # the tilt alone, predicted from the measured attitude (no learned factors, no filtered attitude: fewer states
+    # to carry on the robot)
+    estimator = TiltEstimator(params, dt, s.tilt_process_noise, s.gyro_sigma, s.tilt_model_error, attitude_gain=1.0)
     update = _estimator_update(estimator)
     predict = estimator.step.fun
     rti = _RTI(params, s)

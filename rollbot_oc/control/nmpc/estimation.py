@@ -14,7 +14,7 @@ from rollbot_oc.dynamics import NZ, REDUCED
 from rollbot_oc.fastcall import FastFunction
 from rollbot_oc.params import NP, PARAM_INDEX, TILT, RollbotParams
 
-__all__ = ["TiltEstimator", "LEARNABLE", "check_learning"]
+__all__ = ["TiltEstimator", "LEARNABLE", "check_filter"]
 
 # parameters whose scale factors the filter may learn: the shell's mass, the pendulum's mass, the rolling damping
 # and the shell's inertia (those a robot is weighed and measured with least exactly; its geometry and motor limits
@@ -23,14 +23,16 @@ LEARNABLE = ("M", "m", "k0", "I")
 SCALE_RANGE = (0.7, 1.3)  # a learned scale factor stays within 30 % of the nominal model
 
 
-def check_learning(learn, learn_sigma: float, what: str = "") -> None:
-    """Raise ``ValueError`` (one line, prefixed by ``what``) unless ``learn`` names only ``LEARNABLE`` parameters
-    and ``learn_sigma`` is in (0, 0.3]."""
+def check_filter(learn, learn_sigma: float, attitude_gain: float, what: str = "") -> None:
+    """Raise ``ValueError`` (one line, prefixed by ``what``) unless ``learn`` names only ``LEARNABLE`` parameters,
+    ``learn_sigma`` is in (0, 0.3] and ``attitude_gain`` in (0, 1]."""
     unknown = [name for name in learn if name not in LEARNABLE]
     if unknown:
         raise ValueError(f"{what}cannot learn {', '.join(map(repr, unknown))}: valid are {', '.join(LEARNABLE)}")
     if not (math.isfinite(learn_sigma) and 0 < learn_sigma <= 0.3):
         raise ValueError(f"{what}learn_sigma = {learn_sigma!r} is out of range: valid is (0, 0.3]")
+    if not (math.isfinite(attitude_gain) and 0 < attitude_gain <= 1):
+        raise ValueError(f"{what}attitude_gain = {attitude_gain!r} is out of range: valid is (0, 1]")
 
 
 @functools.lru_cache(maxsize=None)
@@ -70,11 +72,19 @@ class TiltEstimator:
         Parameters of ``LEARNABLE`` whose scale factors are learned (none by default: the tilt alone).
     learn_sigma : float
         Prior standard deviation of each factor (relative error of the nominal value).
+    attitude_gain : float
+        Gain, in (0, 1], of the attitude the predictions start from: each period the model's predicted attitude
+        moves this fraction of the way to the measured one (1: the measurement alone). The measured attitude's
+        noise would enter both the prediction and its Jacobian, and bias the learned factors (the pendulum's
+        mass and the damping low); the model carries the attitude between measurements, from the measured
+        angular velocity.
     """
 
     def __init__(self, params: RollbotParams, dt: float, process_noise: float = 0.01, gyro_sigma: float = 2e-3,
-                 model_error: float = 0.1, learn=(), learn_sigma: float = 0.1):
-        check_learning(learn, learn_sigma)
+                 model_error: float = 0.1, learn=(), learn_sigma: float = 0.1,
+                 attitude_gain: float = 0.05):
+        check_filter(learn, learn_sigma, attitude_gain)
+        self.attitude_gain = attitude_gain
         self.p = params.vector()
         self.dt = dt
         self.q = process_noise**2 * dt
@@ -91,6 +101,7 @@ class TiltEstimator:
         self.tilt = self.p[TILT].copy()
         self.scales = np.ones(len(self.learn))
         self._P = np.diag([math.radians(2.0) ** 2] * 2 + [self.learn_sigma**2] * len(self.learn))
+        self.attitude = None  # the filtered attitude the next prediction starts from (None: the measured one)
 
     @property
     def P(self) -> np.ndarray:
@@ -100,7 +111,11 @@ class TiltEstimator:
     def update(self, z_prev, u_prev: float, z_now) -> np.ndarray:
         """Fold in one period: state ``z_prev``, command ``u_prev`` (rad/s^2), then state ``z_now``."""
         n = 2 + len(self.learn)
-        zn, J = self.step(z_prev, u_prev, self.params())
+        start = np.array(z_prev, dtype=float)
+        if self.attitude is not None:
+            start[REDUCED.quaternion] = self.attitude
+        zn, J = self.step(start, u_prev, self.params())
+        self.attitude = _blend(zn[REDUCED.quaternion], np.asarray(z_now)[REDUCED.quaternion], self.attitude_gain)
         J = J.reshape(n, 3).T  # the buffer is column-major
         H = np.column_stack([J[:, :2], J[:, 2:] * self.p[self._columns]])  # per unit of each factor
         residual = np.asarray(z_now)[REDUCED.omega] - zn[REDUCED.omega]
@@ -110,11 +125,16 @@ class TiltEstimator:
         change = float(np.linalg.norm(zn[REDUCED.omega] - np.asarray(z_prev)[REDUCED.omega]))
         S = H @ P @ H.T + np.eye(3) * (self.r + (self.model_error * change) ** 2)
         K = np.linalg.solve(S, H @ P).T  # S is symmetric positive definite (r > 0)
+        P = (np.eye(n) - K @ H) @ P
         x = np.concatenate([self.tilt, self.scales]) + K @ residual
         self.tilt = np.clip(x[:2], -0.5, 0.5)
         self.scales = np.clip(x[2:], *SCALE_RANGE)
-        self._P = (np.eye(n) - K @ H) @ P
+        self._P = 0.5 * (P + P.T)  # (rounding would make the covariance lose its symmetry)
         return self.tilt
+
+    def lose_track(self):
+        """A measurement was missed: the next prediction starts from the measured attitude."""
+        self.attitude = None
 
     def params(self) -> np.ndarray:
         """The model parameter vector with the estimated tilt and the learned factors."""
@@ -126,3 +146,16 @@ class TiltEstimator:
     def learned(self) -> dict:
         """The learned scale factors by parameter name."""
         return {name: float(scale) for name, scale in zip(self.learn, self.scales)}
+
+
+def _blend(predicted, measured, gain: float):
+    """The unit quaternion ``gain`` of the way from ``predicted`` to ``measured`` (either sign; the measured one if
+    the prediction is broken)."""
+    measured = np.array(measured, dtype=float)
+    predicted = np.asarray(predicted, dtype=float)
+    if gain >= 1.0 or not np.all(np.isfinite(predicted)):
+        return measured
+    if predicted @ measured < 0:
+        measured = -measured
+    q = (1.0 - gain) * predicted + gain * measured  # (normalised: the two are within degrees of each other)
+    return q / np.linalg.norm(q)

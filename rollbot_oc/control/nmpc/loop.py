@@ -61,7 +61,8 @@ class NMPC(ControllerBase):
         self._track_diag = self.weights.diagonal(s.N)
         self._brake_diag = s.brake_weights.diagonal(s.N)
         self.estimator = TiltEstimator(self.params, dt, s.tilt_process_noise, s.gyro_sigma,
-                                       s.tilt_model_error, s.learn if s.estimate_tilt else (), s.learn_sigma)
+                                       s.tilt_model_error, s.learn if s.estimate_tilt else (), s.learn_sigma,
+                                       s.attitude_gain)
         # the legs' planner, built once (its floor tilt is set per plan from the estimate)
         level = self.params.replace(slope=0.0)
         self._legs = _rest_to_rest(level, s.plan, tuple(s.constraints)) if mission.stops else None
@@ -483,6 +484,8 @@ class NMPC(ControllerBase):
         if self.settings.estimate_tilt and self.previous is not None and seen == self.previous[0] + 1:
             u = self.commands.get(self.previous[0], 0.0)
             self.estimator.update(self.previous[1], u, z_meas)
+        else:
+            self.estimator.lose_track()
         self.previous = (seen, z_meas)
 
     def _predict_to_now(self, z, seen: int, k: int):

@@ -144,6 +144,10 @@ class NMPCSettings:
     tilt_model_error : float
         Assumed relative error of the model's one-step change of the angular
         velocity (``TiltEstimator.model_error``).
+    attitude_gain : float
+        Gain of the filter's attitude (``TiltEstimator.attitude_gain``): the
+        fraction, each period, by which the attitude carried by the model moves
+        to the measured one; 1 uses the measurement alone.
     hold_time : float
         How long after a leg's plan ends a robot nearly at rest (see
         ``recover_speed``) outside its stop's tolerance waits before it gets a
@@ -295,6 +299,7 @@ class NMPCSettings:
     tilt_process_noise: float = 0.01
     gyro_sigma: float = 2e-3
     tilt_model_error: float = 0.1
+    attitude_gain: float = 0.05
     hold_time: float = 1.0
     hold_radius: float = 0.05
     replan_distance: float = 0.15
@@ -347,10 +352,10 @@ class NMPCSettings:
             raise ValueError(f"NMPC solver = {self.solver!r}; valid are 'ipopt', 'rti'")
         if not (isinstance(self.N, int) and self.N >= 2):
             raise ValueError(f"NMPC N = {self.N!r} must be a whole number >= 2")
-        from rollbot_oc.control.nmpc.estimation import check_learning  # (estimation needs no settings)
+        from rollbot_oc.control.nmpc.estimation import check_filter  # (estimation needs no settings)
 
         object.__setattr__(self, "learn", tuple(self.learn))
-        check_learning(self.learn, self.learn_sigma, "NMPC ")
+        check_filter(self.learn, self.learn_sigma, self.attitude_gain, "NMPC ")
         if not (math.isfinite(self.swung_angle) and 0 < self.swung_angle <= math.pi):
             raise ValueError(f"NMPC swung_angle = {self.swung_angle!r} rad is out of range: valid is (0, pi]")
         if not (math.isfinite(self.entry_shift_speed) and self.entry_shift_speed > 0):

@@ -3,6 +3,7 @@ log within 1e-9 of the Python controller, and drives the simulator through ctype
 
 import re
 import shutil
+from dataclasses import replace
 
 import casadi as ca
 import numpy as np
@@ -31,19 +32,19 @@ def test_structured_linearisation_as_a_graph_is_the_numeric_one():
         assert np.allclose(numeric.reshape(symbolic.shape), symbolic.full(), rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.slow
 def test_the_exported_filter_is_the_numeric_one():
     """The step's symbolic tilt filter (``export.step._estimator_update``) against ``TiltEstimator.update`` on the
     measured attitude (``attitude_gain`` 1), over a recorded stretch of the N-shape: the same tilt and covariance
     to 1e-12."""
     from rollbot_oc.control.nmpc.estimation import TiltEstimator
     from rollbot_oc.dynamics import to_reduced
-    from rollbot_oc.export.step import EMBEDDED_SETTINGS as s, _estimator_update
+    from rollbot_oc.export.step import EMBEDDED_SETTINGS as s, _estimator_update, control_step
 
     params = RollbotParams()
     run = run_problem(load_bundled("n_shape").with_duration(3.0), "nmpc", seed=1)
     x, u = run.result.x, run.result.command
-    numeric = TiltEstimator(params, 0.01, s.tilt_process_noise, s.gyro_sigma, s.tilt_model_error, attitude_gain=1.0)
+    numeric = TiltEstimator(params, 0.01, s.tilt_process_noise, s.gyro_sigma, s.tilt_model_error,
+                            attitude_gain=s.attitude_gain)
     symbolic = _estimator_update(numeric)
     tilt, P = numeric.tilt.copy(), numeric.P.copy()
     prior = P.copy()
@@ -54,8 +55,11 @@ def test_the_exported_filter_is_the_numeric_one():
         tilt, P = np.asarray(tilt).ravel(), np.asarray(P)
         assert np.allclose(tilt, numeric.tilt, atol=1e-12, rtol=0) and np.allclose(P, numeric.P, atol=1e-12, rtol=0)
     assert np.linalg.norm(tilt) > 0 and np.trace(P) < 0.5 * np.trace(prior)  # it did learn something
+    with pytest.raises(ValueError, match="attitude_gain = 0.05"):
+        control_step(params, replace(s, attitude_gain=0.05))
 
 
+@pytest.mark.slow
 def test_export_builds_replays_the_whole_n_shape_and_closes_the_loop_through_c(tmp_path):
     """One test (one export and one build, whichever worker runs it): the project is written whole, builds with
     -std=c99 -O2 -Wall -Werror, ``make check`` replays every period of the N-shape within 1e-9 (and fails on a

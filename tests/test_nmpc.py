@@ -11,6 +11,7 @@ from rollbot_oc.codegen import compiler
 from rollbot_oc.control.missions import Waypoints
 from rollbot_oc.control.nmpc import NMPC, NMPCSettings, RTISolver, TiltEstimator
 from rollbot_oc.control.ocp import RestToRest, SolveFailed
+from rollbot_oc.dynamics import REDUCED
 from rollbot_oc.params import PARAM_INDEX, RollbotParams
 from rollbot_oc.problems import load_problem, make_controller, run_problem
 
@@ -207,6 +208,8 @@ def test_estimator_and_settings_validation():
         NMPCSettings(learn=("M", "R"))
     with pytest.raises(ValueError, match="learn_sigma = 0.5"):
         NMPCSettings(learn_sigma=0.5)
+    with pytest.raises(ValueError, match=r"attitude_gain = 0 is out of range: valid is \(0, 1\]"):
+        NMPCSettings(attitude_gain=0)
     est = TiltEstimator(RollbotParams(), 0.01)
     assert np.allclose(est.tilt, 0.0) and est.learned() == {}
 
@@ -259,8 +262,42 @@ def test_learning_in_closed_loop_is_not_biased_by_the_attitude_noise():
     for name in ("M", "m", "k0"):
         truth = getattr(course.problem.params, name) / getattr(course.believed, name)
         assert learned[name] == pytest.approx(truth, rel=0.025), (name, learned, truth)
-    with pytest.raises(ValueError, match="attitude_gain = 0 is out of range"):
-        NMPCSettings(attitude_gain=0)
+
+
+def test_the_filtered_attitude_ignores_the_quaternion_sign_and_restarts_after_a_gap():
+    """The same attitude measured as -q gives the same filter (the model is even in q); after ``lose_track`` the
+    prediction starts from the measured attitude again, as a fresh filter's does; gain 1 is the measurement."""
+    from rollbot_oc.dynamics import rest_state, to_reduced
+    from rollbot_oc.simulate import Sensor, simulate
+
+    params = RollbotParams()
+    result = simulate(rest_state(params), 0.5, params=params, accel=lambda t: 10.0 * math.sin(8.0 * t))
+    sensor = Sensor(angle_noise=math.radians(0.6), seed=2)
+    zs = [to_reduced(sensor.measure(0.0, x).state) for x in result.x.T]
+    flipped = [z.copy() for z in zs]
+    for z in flipped[1::2]:
+        z[REDUCED.quaternion] *= -1.0
+    a, b = (TiltEstimator(params, 0.01, learn=("M",)) for _ in range(2))
+    errors = []  # (filtered, measured) attitude errors, rad
+    for k in range(result.command.size):
+        a.update(zs[k], float(result.command[k]), zs[k + 1])
+        b.update(flipped[k], float(result.command[k]), flipped[k + 1])
+        assert abs(float(a.attitude @ b.attitude)) == pytest.approx(1.0, abs=1e-12)
+        truth = to_reduced(result.x[:, k + 1])[REDUCED.quaternion]
+        errors.append([2 * math.acos(min(1.0, abs(float(q @ truth)))) for q in (a.attitude, zs[k + 1][REDUCED.quaternion])])
+    assert np.allclose(a.tilt, b.tilt, atol=1e-12) and np.allclose(a.scales, b.scales, atol=1e-12)
+    # filtered, the attitude is nearer the truth than the measurement (measured rms 0.12 deg against 0.99 deg)
+    rms = np.sqrt(np.mean(np.square(errors[20:]), axis=0))
+    assert rms[0] < 0.3 * rms[1]
+    a.lose_track()
+    fresh = TiltEstimator(params, 0.01, learn=("M",))
+    fresh.tilt, fresh.scales, fresh._P = a.tilt.copy(), a.scales.copy(), a._P.copy()
+    a.update(zs[10], 1.0, zs[11])
+    fresh.update(zs[10], 1.0, zs[11])
+    assert np.array_equal(a.tilt, fresh.tilt) and np.array_equal(a.attitude, fresh.attitude)
+    measured = TiltEstimator(params, 0.01, attitude_gain=1.0)
+    measured.update(zs[0], 0.0, zs[1])
+    assert measured.attitude is None  # gain 1: every prediction from the measured attitude
 
 
 TIMING = ("step_time_min", "step_time_median", "step_time_p95", "step_time_max", "solve_time_min",

@@ -64,8 +64,9 @@ __all__ = ["EMBEDDED_SETTINGS", "STATUS", "Memory", "StepFunction", "control_ste
 # The robot's processor has a tenth of a desktop core's speed: the exported step keeps the NMPC's weights, limits
 # and fallbacks over the same 3 s horizon with 25 intervals of 0.12 s and one integration step each (the Python
 # NMPC's 60 of 0.05 s with two steps each follow its plans closer at several times the cost per solve and 2.4
-# times the solves; ``benchmarks/bench_export_c_result.txt`` measures this one against 30 of 0.1 s with two).
-EMBEDDED_SETTINGS = NMPCSettings(N=25, h=0.12, substeps=1, max_failures=3)
+# times the solves; ``benchmarks/bench_export_c_result.txt`` measures this one against 30 of 0.1 s with two). Its
+# filter learns the tilt alone, from the measured attitude (fewer states to carry on the robot).
+EMBEDDED_SETTINGS = NMPCSettings(N=25, h=0.12, substeps=1, max_failures=3, learn=(), attitude_gain=1.0)
 
 HISTORY = 4  # commands remembered: delay compensation over up to HISTORY - 1 periods of latency
 STATUS = {0: "solved", 1: "between solves", 2: "QP failed: previous plan", 3: "brake", 4: "done"}
@@ -278,8 +279,9 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     every = max(1, int(round(s.h / dt)))
     if abs(every * dt - s.h) > 1e-9:
         raise ValueError(f"NMPC h = {s.h} s must be a whole number of control periods dt = {dt} s")
-    # the tilt alone, predicted from the measured attitude (no learned factors, no filtered attitude: fewer states
-    # to carry on the robot)
+    if s.learn or s.attitude_gain != 1.0:
+        raise ValueError(f"exported step: learn = {list(s.learn)!r} and attitude_gain = {s.attitude_gain!r}; its "
+                         f"filter learns the tilt alone from the measured attitude: valid are [] and 1")
     estimator = TiltEstimator(params, dt, s.tilt_process_noise, s.gyro_sigma, s.tilt_model_error, attitude_gain=1.0)
     update = _estimator_update(estimator)
     predict = estimator.step.fun

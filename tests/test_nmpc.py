@@ -284,7 +284,8 @@ def test_the_filtered_attitude_ignores_the_quaternion_sign_and_restarts_after_a_
         b.update(flipped[k], float(result.command[k]), flipped[k + 1])
         assert abs(float(a.attitude @ b.attitude)) == pytest.approx(1.0, abs=1e-12)
         truth = to_reduced(result.x[:, k + 1])[REDUCED.quaternion]
-        errors.append([2 * math.acos(min(1.0, abs(float(q @ truth)))) for q in (a.attitude, zs[k + 1][REDUCED.quaternion])])
+        errors.append([2 * math.acos(min(1.0, abs(float(q @ truth))))
+                       for q in (a.attitude, zs[k + 1][REDUCED.quaternion])])
     assert np.allclose(a.tilt, b.tilt, atol=1e-12) and np.allclose(a.scales, b.scales, atol=1e-12)
     # filtered, the attitude is nearer the truth than the measurement (measured rms 0.12 deg against 0.99 deg)
     rms = np.sqrt(np.mean(np.square(errors[20:]), axis=0))

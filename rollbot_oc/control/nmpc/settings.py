@@ -196,7 +196,10 @@ class NMPCSettings:
         legs are refined from where the guess will be each of these times
         later, s, one after the other (a minimum-time leg has local optima,
         and where it starts decides which one IPOPT finds); of those ready in
-        time, the one that arrives first takes over where it starts.
+        time, the one that arrives first takes over where it starts.  The
+        default, 1.2 s, is the modelled time of the planner's longest solve
+        (``plan.max_iter`` iterations of ``plan_iteration_time``): a refinement
+        that converges is never late.
     tilt_settle : float
         The first leg's refinement is planned this long after the start, once
         the floor tilt estimate has settled (a plan on the level floor misses
@@ -227,7 +230,10 @@ class NMPCSettings:
         Modelled compute time of one IPOPT iteration of a leg's plan, and of
         the quasi-stable guesses of a leg planned ahead, s: a plan is used only
         once that much simulated time has passed after it was started (with
-        ``realtime``, its measured wall-clock time instead).
+        ``realtime``, its measured wall-clock time instead).  The defaults are
+        the planner's measured times on a 2-core machine with a closed-loop run
+        on the other core (``benchmarks/bench_planner.py --busy``), rounded up
+        with room for a slower machine.
     entry_times : tuple of float
         Circles: durations tried, in order, for the planned entry onto the
         orbit (least effort in that time), s; those too short for
@@ -273,9 +279,10 @@ class NMPCSettings:
         machine, expanded: compiling its stages as C pays only over many circles, ``compiled=True``).
     gates : OCPSettings
         Settings of the plan through gates (``nmpc.gates``; its ``N`` is unused:
-        each gate has ``GATE_INTERVALS``): the exact Hessian, and 40 % of the
+        each gate has ``GATE_INTERVALS``): the exact Hessian, and half the
         motor's speed left to the feedback (at 85 % the fast plan is tracked
-        too loosely to pass every gate within 5 cm).
+        too loosely to pass every gate within 5 cm; at 60 % the bundled course
+        passed on some machines and not on others, see the README).
     """
 
     N: int = 60
@@ -334,7 +341,7 @@ class NMPCSettings:
     compiled: bool | None = None
     plan: OCPSettings = field(default_factory=lambda: OCPSettings(N=40, accel_margin=0.85, compiled=True, max_iter=150))
     entry: OCPSettings = field(default_factory=OCPSettings)
-    gates: OCPSettings = field(default_factory=lambda: OCPSettings(accel_margin=0.85, speed_margin=0.6,
+    gates: OCPSettings = field(default_factory=lambda: OCPSettings(accel_margin=0.85, speed_margin=0.5,
                                                                    hessian="exact"))
 
     def __post_init__(self):

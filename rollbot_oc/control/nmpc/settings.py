@@ -8,8 +8,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rollbot_oc.control.ocp import OCPSettings
+from rollbot_oc.dynamics import REDUCED
 
 __all__ = ["TrackingWeights", "NMPCSettings"]
+
+ARRIVAL_SPEED = 2000.0  # s^2/rad^2: see ``TrackingWeights.arrival_speed`` (bench_robustness_result item 9)
 
 
 @dataclass(frozen=True)
@@ -32,6 +35,12 @@ class TrackingWeights:
         Circles: distance from the target circle, 1/m^2 (0 for waypoints).
     terminal : float
         Factor on the state weights at the end of the horizon.
+    arrival_speed : float
+        Stops: driving-speed weight at the horizon nodes past the end of the
+        leg, s^2/rad^2 (0: ``speed`` there too).  With it the NMPC plans the
+        last braking so that the motor stands still on arrival, instead of
+        overshooting the plan's zero speed by a fraction of an interval: a
+        motor that swings back rocks the shell, and the rest test waits.
     """
 
     position: float = 400.0
@@ -41,12 +50,14 @@ class TrackingWeights:
     accel: float = 0.02
     radial: float = 0.0
     terminal: float = 5.0
+    arrival_speed: float = 0.0
 
     @classmethod
     def for_waypoints(cls) -> "TrackingWeights":
         """Stops: a firm hold on position, most of all at the end of the horizon (measured: it keeps
-        every stop within 3.5 cm with the plant's masses and damping 10 % off the model)."""
-        return cls(position=1500.0, terminal=20.0, omega=40.0)
+        every stop within 3.5 cm with the plant's masses and damping 10 % off the model), and the motor
+        still on arrival (``arrival_speed``; ``benchmarks/bench_robustness_result.md`` item 9)."""
+        return cls(position=1500.0, terminal=20.0, omega=40.0, arrival_speed=ARRIVAL_SPEED)
 
     @classmethod
     def for_holding(cls) -> "TrackingWeights":
@@ -66,12 +77,15 @@ class TrackingWeights:
         """Circles: the distance from the circle matters, not the point on it (the reference is re-phased)."""
         return cls(position=400.0, radial=4000.0, terminal=5.0)
 
-    def diagonal(self, N: int) -> np.ndarray:
-        """Gauss-Newton weights of every decision variable ``(Z (10, N+1) by node, U (N,))``."""
+    def diagonal(self, N: int, ended=None) -> np.ndarray:
+        """Gauss-Newton weights of every decision variable ``(Z (10, N+1) by node, U (N,))``; ``ended``
+        (N+1,) bool marks the nodes past the end of a leg, whose driving speed weighs ``arrival_speed``."""
         wz = np.array([self.position] * 2 + [self.attitude] * 4 + [self.omega] * 3 + [self.speed])
-        scale = np.ones(N + 1)
-        scale[-1] = self.terminal
-        return np.concatenate([np.outer(scale, wz).ravel(), np.full(N, self.accel)])
+        weights = np.tile(wz, (N + 1, 1))
+        if ended is not None and self.arrival_speed > 0:
+            weights[np.asarray(ended, bool), REDUCED.theta_dot] = max(self.speed, self.arrival_speed)
+        weights[-1] *= self.terminal
+        return np.concatenate([weights.ravel(), np.full(N, self.accel)])
 
 
 @dataclass(frozen=True)

@@ -111,6 +111,25 @@ def test_export_builds_replays_the_whole_n_shape_and_closes_the_loop_through_c(t
     assert check.returncode != 0 and "check FAILED" in check.stdout
 
 
+def test_the_step_weighs_the_arrival_only_past_the_legs_end():
+    """The step honours ``TrackingWeights.arrival_speed`` as the NMPC does: with it the commands are those without
+    it as long as the horizon ends within the first leg, and not once it reaches past the leg's end."""
+    from rollbot_oc.export.project import embedded_controller
+    from rollbot_oc.export.step import EMBEDDED_SETTINGS as s
+
+    problem = load_bundled("n_shape").with_duration(3.0)
+    arriving = replace(s, waypoint_weights=replace(s.waypoint_weights, arrival_speed=2000.0))
+    commands = []
+    for settings in (s, arriving):
+        controller, step, reference = embedded_controller(problem, settings=settings, record=True)
+        run_problem(problem, controller, show_progress=False)
+        commands.append(np.array(controller.commands))
+    within = int(round((reference.durations[0] - s.N * s.h) / problem.dt))  # the horizon within the first leg
+    assert 0 < within < commands[0].size
+    assert np.array_equal(commands[0][:within], commands[1][:within])
+    assert not np.allclose(commands[0], commands[1])
+
+
 def test_export_c_refuses_what_it_cannot_export(tmp_path, capsys):
     assert main(["export-c", "--out", str(tmp_path / "c"), "--problem", "circle_R035"]) == EXIT_USAGE
     err = capsys.readouterr().err.strip().splitlines()

@@ -52,7 +52,7 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.control.nmpc.estimation import TiltEstimator
-from rollbot_oc.control.nmpc.settings import NMPCSettings
+from rollbot_oc.control.nmpc.settings import NMPCSettings, TrackingWeights
 from rollbot_oc.control.nmpc.tracking import RTISolver, tracking_problem
 from rollbot_oc.dynamics import NZ, OMEGA, POS, QUAT, REDUCED, THETA, THETA_DOT, motor_speed_clip, symbolic_model
 from rollbot_oc.missions.stops import StopRule
@@ -65,8 +65,12 @@ __all__ = ["EMBEDDED_SETTINGS", "STATUS", "Memory", "StepFunction", "control_ste
 # and fallbacks over the same 3 s horizon with 25 intervals of 0.12 s and one integration step each (the Python
 # NMPC's 60 of 0.05 s with two steps each follow its plans closer at several times the cost per solve and 2.4
 # times the solves; ``benchmarks/bench_export_c_result.txt`` measures this one against 30 of 0.1 s with two). Its
-# filter learns the tilt alone, from the measured attitude (fewer states to carry on the robot).
-EMBEDDED_SETTINGS = NMPCSettings(N=25, h=0.12, substeps=1, max_failures=3, learn=(), attitude_gain=1.0)
+# filter learns the tilt alone, from the measured attitude (fewer states to carry on the robot). It does not weigh
+# the driving speed past a leg's end (``TrackingWeights.arrival_speed``, which the step honours): on its 0.12 s
+# intervals and legs planned before the run, the N-shape took longer with it (seeds 0 to 3, sum of times: 116.8 s
+# without, 122.6 s with 200 s^2/rad^2, 124.4 s with the NMPC's 2000).
+EMBEDDED_SETTINGS = NMPCSettings(N=25, h=0.12, substeps=1, max_failures=3, learn=(), attitude_gain=1.0,
+                                 waypoint_weights=replace(TrackingWeights.for_waypoints(), arrival_speed=0.0))
 
 HISTORY = 4  # commands remembered: delay compensation over up to HISTORY - 1 periods of latency
 STATUS = {0: "solved", 1: "between solves", 2: "QP failed: previous plan", 3: "brake", 4: "done"}
@@ -198,10 +202,12 @@ class _RTI:
         self.N = s.N
         dummy = np.zeros((NZ, s.N + 1))
         track = solver._parameters(dummy[:, 0], dummy, np.zeros(s.N), self.p_nominal, None, None)
+        arrival = solver._parameters(dummy[:, 0], dummy, np.zeros(s.N), self.p_nominal, None,
+                                     s.waypoint_weights.diagonal(s.N, np.ones(s.N + 1, bool)))
         hold = solver._parameters(dummy[:, 0], dummy, np.zeros(s.N), self.p_nominal, None,
                                   s.hold_weights.diagonal(s.N))
-        self.weights = {name: (track[name], hold[name]) for name in ("state_weight", "accel_weight",
-                                                                     "mission_weight")}
+        self.weights = {name: (track[name], arrival[name], hold[name]) for name in ("state_weight", "accel_weight",
+                                                                                    "mission_weight")}
         self.mission_values = solver._mission_values
 
     def _row_shift(self) -> np.ndarray:
@@ -222,6 +228,7 @@ class _RTI:
         w, lam_w, lam_g = ca.MX.sym("w", n), ca.MX.sym("lam_w", n), ca.MX.sym("lam_g", m)
         warm, z0 = ca.MX.sym("warm"), ca.MX.sym("z0", NZ)
         Zr, Ur, hold = ca.MX.sym("Zr", NZ, N + 1), ca.MX.sym("Ur", 1, N), ca.MX.sym("hold", 1, N + 1)
+        ended = ca.MX.sym("ended", 1, N + 1)  # the nodes past the leg's end (``TrackingWeights.arrival_speed``)
         tilt = ca.MX.sym("tilt", 2)
         # q and -q are the same attitude: give the reference the measurement's sign
         sign = ca.if_else(ca.dot(Zr[REDUCED.quaternion, 0], z0[REDUCED.quaternion]) < 0, -1, 1)
@@ -230,10 +237,14 @@ class _RTI:
         p = ca.MX(ca.DM(self.p_nominal))
         p[TILT] = tilt
         values = {"x0": z0, "p": p, "reference": Zs, "accel_reference": ca.horzcat(Ur, 0)}
-        for name, (track, hold_value) in self.weights.items():
-            track, hold_value = ca.DM(np.atleast_2d(track)), ca.DM(np.atleast_2d(hold_value))
-            values[name] = track + (hold_value - track) * ca.repmat(hold, track.size1(), 1) if track.numel() \
-                else ca.MX(track.sparsity())
+        for name, (track, arrival, hold_value) in self.weights.items():
+            track, arrival, hold_value = (ca.DM(np.atleast_2d(v)) for v in (track, arrival, hold_value))
+            if track.numel():
+                moving = track if np.array_equal(np.array(arrival), np.array(track)) else \
+                    track + (arrival - track) * ca.repmat(ended, track.size1(), 1)
+                values[name] = moving + (hold_value - moving) * ca.repmat(hold, track.size1(), 1)
+            else:
+                values[name] = ca.MX(track.sparsity())
         values.update({k: ca.MX(ca.DM(v)) for k, v in self.mission_values.items()})
         V, ids = _placement(values)
         par = V[self.tr.parameter_vector(ids).astype(int).tolist()]
@@ -251,7 +262,7 @@ class _RTI:
         shifted = w1[shift]
         lam_w1, lam_g1 = lam_w1[shift], lam_g1[self._row_shift().tolist()]  # the active set moves on with it
         U = w1[self.solver.split(index)[1].astype(int).tolist()]
-        return ca.Function("rollbot_rti", [w, lam_w, lam_g, warm, z0, Zr, Ur, hold, tilt],
+        return ca.Function("rollbot_rti", [w, lam_w, lam_g, warm, z0, Zr, Ur, hold, ended, tilt],
                            [shifted, lam_w1, lam_g1, U, ok])
 
 
@@ -358,7 +369,9 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     warm_in = ca.if_else(switch, 0, part("warm"))  # a new leg starts from its reference (as the NMPC's)
     solve = ca.logic_and(ca.logic_and(ca.logic_or(instant, current_in == 0), ca.logic_not(braking)),
                          ca.logic_not(done))
-    rti_args = [part("w"), part("lam_w"), part("lam_g"), warm_in, z, Zr, Ur, ca.repmat(anchored, 1, N + 1), tilt]
+    past_end = local + ca.DM(s.h * np.arange(N + 1)).T > T  # the horizon's nodes past the leg's end
+    rti_args = [part("w"), part("lam_w"), part("lam_g"), warm_in, z, Zr, Ur, ca.repmat(anchored, 1, N + 1), past_end,
+                tilt]
     rti_fun = rti.function()
     skip = ca.Function("rollbot_no_rti", rti_fun.mx_in(), [rti_fun.mx_in(0), rti_fun.mx_in(1), rti_fun.mx_in(2),
                                                             ca.MX.zeros(N), ca.MX(0)])

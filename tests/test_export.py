@@ -128,6 +128,15 @@ def test_the_step_weighs_the_arrival_only_past_the_legs_end():
     assert 0 < within < commands[0].size
     assert np.array_equal(commands[0][:within], commands[1][:within])
     assert not np.allclose(commands[0], commands[1])
+    # the weights the step blends in are the NMPC's own diagonal with those nodes ended
+    from rollbot_oc.export.step import _RTI
+
+    rti = _RTI(problem.params.replace(slope=0.0), arriving)
+    ended = np.arange(s.N + 1) >= 10
+    for name, (track, arrival, _hold) in rti.weights.items():
+        expected = rti.solver._parameters(np.zeros(10), np.zeros((10, s.N + 1)), np.zeros(s.N), rti.p_nominal, None,
+                                          arriving.waypoint_weights.diagonal(s.N, ended))[name]
+        assert np.array_equal(np.asarray(track) + (np.asarray(arrival) - np.asarray(track)) * ended, expected), name
 
 
 def test_export_c_refuses_what_it_cannot_export(tmp_path, capsys):

@@ -59,6 +59,9 @@ def test_arrival_speed_weighs_only_the_nodes_past_the_leg():
     weights = TrackingWeights.for_waypoints()
     N, speed = 10, REDUCED.theta_dot
     plain = weights.diagonal(N)
+    per_node = np.array([weights.position] * 2 + [weights.attitude] * 4 + [weights.omega] * 3 + [weights.speed])
+    scale = np.r_[np.ones(N), weights.terminal]
+    assert np.array_equal(plain, np.r_[np.outer(scale, per_node).ravel(), np.full(N, weights.accel)])
     assert np.array_equal(plain, replace(weights, arrival_speed=0.0).diagonal(N, np.ones(N + 1, bool)))
     ended = np.arange(N + 1) >= 7
     diag = weights.diagonal(N, ended)

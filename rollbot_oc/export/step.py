@@ -187,7 +187,8 @@ def _estimator_update(estimator: TiltEstimator) -> ca.Function:
 
 class _RTI:
     """One real-time iteration of the tracking problem as an MX Function of the controller's quantities:
-    ``(w, lam_w, lam_g, warm, z0, ref, tilt) -> (w_shifted, lam_w, lam_g, U, ok)``."""
+    ``(w, lam_w, lam_g, warm, z0, Zr, Ur, hold, ended, tilt) -> (w_shifted, lam_w, lam_g, U, ok)`` (``hold``,
+    ``ended``: (1, N+1) rows, 1 at the nodes that take the hold weights, and the nodes past the leg's end)."""
 
     def __init__(self, params: RollbotParams, settings: NMPCSettings):
         s = settings

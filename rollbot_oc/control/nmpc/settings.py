@@ -37,7 +37,7 @@ class TrackingWeights:
         Factor on the state weights at the end of the horizon.
     arrival_speed : float
         Stops: driving-speed weight at the horizon nodes past the end of the
-        leg, s^2/rad^2 (0: ``speed`` there too).  With it the NMPC plans the
+        leg, s^2/rad^2 (``speed`` if that is larger; 0: ``speed`` there too).  With it the NMPC plans the
         last braking so that the motor stands still on arrival, instead of
         overshooting the plan's zero speed by a fraction of an interval: a
         motor that swings back rocks the shell, and the rest test waits.
@@ -77,9 +77,24 @@ class TrackingWeights:
         """Circles: the distance from the circle matters, not the point on it (the reference is re-phased)."""
         return cls(position=400.0, radial=4000.0, terminal=5.0)
 
-    def diagonal(self, N: int, ended=None) -> np.ndarray:
-        """Gauss-Newton weights of every decision variable ``(Z (10, N+1) by node, U (N,))``; ``ended``
-        (N+1,) bool marks the nodes past the end of a leg, whose driving speed weighs ``arrival_speed``."""
+    def diagonal(self, N: int, ended: np.ndarray | None = None) -> np.ndarray:
+        """Gauss-Newton weights of every decision variable.
+
+        Parameters
+        ----------
+        N : int
+            Intervals of the horizon.
+        ended : array_like (N+1,) of bool, optional
+            The nodes past the end of a leg: their driving speed weighs
+            ``arrival_speed`` (or ``speed`` if that is larger).
+
+        Returns
+        -------
+        numpy.ndarray (10 (N+1) + N,)
+            The state weights node by node (each in the units of its field),
+            the terminal factor on the last node, then the N acceleration
+            weights (``accel``).
+        """
         wz = np.array([self.position] * 2 + [self.attitude] * 4 + [self.omega] * 3 + [self.speed])
         weights = np.tile(wz, (N + 1, 1))
         if ended is not None and self.arrival_speed > 0:

@@ -620,8 +620,8 @@ class NMPC(ControllerBase):
             elif self.mission.gates:
                 diag = self._gate_diag(t_now - self.segment_start)
             elif self.mission.stops and self.weights.arrival_speed > 0:  # the motor still on arrival
-                plan = self.reference.segments[self.segment][0]
-                diag = self.weights.diagonal(s.N, t_now - self.segment_start + s.h * np.arange(s.N + 1) > plan.T)
+                ended = self.reference.ended(self.segment, t_now - self.segment_start, s.h, s.N)
+                diag = self.weights.diagonal(s.N, ended) if ended.any() else None
         # q and -q are the same attitude: give the (continuous) reference the measurement's sign
         if float(Zr[REDUCED.quaternion, 0] @ z[REDUCED.quaternion]) < 0:
             Zr[REDUCED.quaternion] *= -1.0

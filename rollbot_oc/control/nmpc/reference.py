@@ -58,8 +58,8 @@ class Reference:
         plan = self.segments[index][0]
         Z = plan.state(times)
         U = np.array([plan.accel(t) for t in times[:-1]])
+        after = self.ended(index, t_local, h, N)
         if self.orbit is not None and index == len(self.segments) - 1:
-            after = times > plan.T
             if np.any(after):
                 o = self.orbit
                 phases = o["phase"] + o["Omega"] * (times[after] - plan.T)
@@ -68,6 +68,11 @@ class Reference:
                     own = math.atan2(rel[1], rel[0]) - math.atan2(o["qs"][1], o["qs"][0])
                     phases = phases + _wrap(own - phases[0])
                 Z[:, after] = _orbit_states(o["qs"], o["centre"], phases)
-        elif np.any(times > plan.T):
-            Z[6:10, times > plan.T] = 0.0  # hold the rest state at the stop
+        elif np.any(after):
+            Z[6:10, after] = 0.0  # hold the rest state at the stop
         return Z, U
+
+    def ended(self, index: int, t_local: float, h: float, N: int) -> np.ndarray:
+        """Which of the N+1 horizon nodes from ``t_local`` (s on segment ``index``, nodes ``h`` s apart) lie
+        past the end of its plan (bool (N+1,)): where ``sample`` holds rest (or follows the orbit)."""
+        return t_local + h * np.arange(N + 1) > self.segments[index][0].T

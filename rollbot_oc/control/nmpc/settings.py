@@ -12,8 +12,6 @@ from rollbot_oc.dynamics import REDUCED
 
 __all__ = ["TrackingWeights", "NMPCSettings"]
 
-ARRIVAL_SPEED = 2000.0  # s^2/rad^2: see ``TrackingWeights.arrival_speed`` (bench_robustness_result item 9)
-
 
 @dataclass(frozen=True)
 class TrackingWeights:
@@ -57,7 +55,7 @@ class TrackingWeights:
         """Stops: a firm hold on position, most of all at the end of the horizon (measured: it keeps
         every stop within 3.5 cm with the plant's masses and damping 10 % off the model), and the motor
         still on arrival (``arrival_speed``; ``benchmarks/bench_robustness_result.md`` item 9)."""
-        return cls(position=1500.0, terminal=20.0, omega=40.0, arrival_speed=ARRIVAL_SPEED)
+        return cls(position=1500.0, terminal=20.0, omega=40.0, arrival_speed=2000.0)
 
     @classmethod
     def for_holding(cls) -> "TrackingWeights":

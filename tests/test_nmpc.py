@@ -53,22 +53,29 @@ def test_n_shape_faster_than_the_pid_with_real_stops():
     assert nmpc["plan_duration"] + nmpc["stop_wait"] + nmpc["plan_wait"] <= nmpc["completion_time"]
 
 
-def test_arrival_speed_weighs_only_the_nodes_past_the_leg():
-    """The driving speed weighs ``arrival_speed`` at the horizon nodes past a leg's end (times the terminal
-    factor at the last node); every other weight is the plain diagonal's."""
+def test_arrival_weights_weigh_only_the_nodes_past_the_leg():
+    """The driving speed weighs ``arrival_speed`` and the shell's angular velocity ``arrival_omega`` at the horizon
+    nodes past a leg's end (times the terminal factor at the last node); every other weight is the plain
+    diagonal's."""
     weights = TrackingWeights.for_waypoints()
-    N, speed = 10, REDUCED.theta_dot
+    N, speed, omega = 10, REDUCED.theta_dot, np.arange(NZ)[REDUCED.omega]
     plain = weights.diagonal(N)
     per_node = np.array([weights.position] * 2 + [weights.attitude] * 4 + [weights.omega] * 3 + [weights.speed])
     scale = np.r_[np.ones(N), weights.terminal]
     assert np.array_equal(plain, np.r_[np.outer(scale, per_node).ravel(), np.full(N, weights.accel)])
-    assert np.array_equal(plain, replace(weights, arrival_speed=0.0).diagonal(N, np.ones(N + 1, bool)))
+    off = replace(weights, arrival_speed=0.0, arrival_omega=0.0)
+    assert not off.arrives and np.array_equal(plain, off.diagonal(N, np.ones(N + 1, bool)))
     ended = np.arange(N + 1) >= 7
     diag = weights.diagonal(N, ended)
     changed = np.flatnonzero(diag != plain)
-    assert changed.tolist() == [node * NZ + speed for node in range(7, N + 1)]
+    assert changed.tolist() == [node * NZ + i for node in range(7, N + 1) for i in (*omega, speed)]
     assert diag[7 * NZ + speed] == weights.arrival_speed
     assert diag[N * NZ + speed] == weights.arrival_speed * weights.terminal
+    assert np.all(diag[7 * NZ + omega] == weights.arrival_omega)
+    assert np.all(diag[N * NZ + omega] == weights.arrival_omega * weights.terminal)
+    # each alone changes its own rows only
+    assert np.flatnonzero(replace(weights, arrival_omega=0.0).diagonal(N, ended) != plain).tolist() == \
+        [node * NZ + speed for node in range(7, N + 1)]
 
 
 @pytest.mark.parametrize("name", ["circle_R020", "circle_R065"])  # the extremes (the README measures all four)

@@ -66,11 +66,13 @@ __all__ = ["EMBEDDED_SETTINGS", "STATUS", "Memory", "StepFunction", "control_ste
 # NMPC's 60 of 0.05 s with two steps each follow its plans closer at several times the cost per solve and 2.4
 # times the solves; ``benchmarks/bench_export_c_result.txt`` measures this one against 30 of 0.1 s with two). Its
 # filter learns the tilt alone, from the measured attitude (fewer states to carry on the robot). It does not weigh
-# the driving speed past a leg's end (``TrackingWeights.arrival_speed``, which the step honours): on its 0.12 s
-# intervals and legs planned before the run, the N-shape took longer with it (seeds 0 to 3, sum of times: 116.8 s
-# without, 122.6 s with 200 s^2/rad^2, 124.4 s with the NMPC's 2000).
+# the driving speed and the shell's motion past a leg's end (``TrackingWeights.arrival_speed`` and
+# ``arrival_omega``, which the step honours): on its 0.12 s intervals and legs planned before the run, the N-shape
+# took longer with the first (seeds 0 to 3, sum of times: 116.8 s without, 122.6 s with 200 s^2/rad^2, 124.4 s with
+# the NMPC's 2000); the second is not measured on the step.
 EMBEDDED_SETTINGS = NMPCSettings(N=25, h=0.12, substeps=1, max_failures=3, learn=(), attitude_gain=1.0,
-                                 waypoint_weights=replace(TrackingWeights.for_waypoints(), arrival_speed=0.0))
+                                 waypoint_weights=replace(TrackingWeights.for_waypoints(), arrival_speed=0.0,
+                                                          arrival_omega=0.0))
 
 HISTORY = 4  # commands remembered: delay compensation over up to HISTORY - 1 periods of latency
 STATUS = {0: "solved", 1: "between solves", 2: "QP failed: previous plan", 3: "brake", 4: "done"}

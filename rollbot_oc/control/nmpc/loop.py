@@ -619,7 +619,7 @@ class NMPC(ControllerBase):
                 diag = self._hold_diag
             elif self.mission.gates:
                 diag = self._gate_diag(t_now - self.segment_start)
-            elif self.mission.stops and self.weights.arrival_speed > 0:  # the motor still on arrival
+            elif self.mission.stops and self.weights.arrives:  # the motor and the shell still on arrival
                 ended = self.reference.ended(self.segment, t_now - self.segment_start, s.h, s.N)
                 diag = self.weights.diagonal(s.N, ended) if ended.any() else None
         # q and -q are the same attitude: give the (continuous) reference the measurement's sign

@@ -39,6 +39,12 @@ class TrackingWeights:
         last braking so that the motor stands still on arrival, instead of
         overshooting the plan's zero speed by a fraction of an interval: a
         motor that swings back rocks the shell, and the rest test waits.
+    arrival_omega : float
+        Stops: shell angular-velocity weight at the same nodes, s^2/rad^2
+        (``omega`` if that is larger).  With it the NMPC plans the approach so
+        that the shell, too, arrives still: a robot that arrives swaying
+        sideways cannot damp that sway at rest (the mode is uncontrollable
+        there, ``tests/test_stability.py``) and waits for it to die out.
     """
 
     position: float = 400.0
@@ -49,13 +55,15 @@ class TrackingWeights:
     radial: float = 0.0
     terminal: float = 5.0
     arrival_speed: float = 0.0
+    arrival_omega: float = 0.0
 
     @classmethod
     def for_waypoints(cls) -> "TrackingWeights":
         """Stops: a firm hold on position, most of all at the end of the horizon (measured: it keeps
         every stop within 3.5 cm with the plant's masses and damping 10 % off the model), and the motor
-        still on arrival (``arrival_speed``; ``benchmarks/bench_robustness_result.md`` item 9)."""
-        return cls(position=1500.0, terminal=20.0, omega=40.0, arrival_speed=2000.0)
+        and the shell still on arrival (``arrival_speed``, ``arrival_omega``;
+        ``benchmarks/bench_robustness_result.md`` items 9 and 10)."""
+        return cls(position=1500.0, terminal=20.0, omega=40.0, arrival_speed=2000.0, arrival_omega=400.0)
 
     @classmethod
     def for_holding(cls) -> "TrackingWeights":
@@ -75,6 +83,11 @@ class TrackingWeights:
         """Circles: the distance from the circle matters, not the point on it (the reference is re-phased)."""
         return cls(position=400.0, radial=4000.0, terminal=5.0)
 
+    @property
+    def arrives(self) -> bool:
+        """Whether the nodes past a leg's end weigh more than the others (``arrival_speed``, ``arrival_omega``)."""
+        return self.arrival_speed > 0 or self.arrival_omega > 0
+
     def diagonal(self, N: int, ended: np.ndarray | None = None) -> np.ndarray:
         """Gauss-Newton weights of every decision variable.
 
@@ -84,7 +97,8 @@ class TrackingWeights:
             Intervals of the horizon.
         ended : array_like (N+1,) of bool, optional
             The nodes past the end of a leg: their driving speed weighs
-            ``arrival_speed`` (or ``speed`` if that is larger).
+            ``arrival_speed`` (or ``speed`` if that is larger), their shell
+            angular velocity ``arrival_omega`` (or ``omega``).
 
         Returns
         -------
@@ -95,8 +109,10 @@ class TrackingWeights:
         """
         wz = np.array([self.position] * 2 + [self.attitude] * 4 + [self.omega] * 3 + [self.speed])
         weights = np.tile(wz, (N + 1, 1))
-        if ended is not None and self.arrival_speed > 0:
-            weights[np.asarray(ended, bool), REDUCED.theta_dot] = max(self.speed, self.arrival_speed)
+        if ended is not None and self.arrives:
+            ended = np.asarray(ended, bool)
+            weights[ended, REDUCED.theta_dot] = max(self.speed, self.arrival_speed)
+            weights[ended, REDUCED.omega] = max(self.omega, self.arrival_omega)
         weights[-1] *= self.terminal
         return np.concatenate([weights.ravel(), np.full(N, self.accel)])
 

@@ -43,9 +43,9 @@ def test_n_shape_faster_than_the_pid_with_real_stops():
     check_plant_limits(nmpc)
     check_real_time(nmpc)
     assert nmpc["plan_failures"] == 0 and max(nmpc["stop_errors"]) <= 0.03  # plan_time: benchmarks/
-    assert N_SHAPE_BOUND <= nmpc["completion_time"] <= 1.45 * N_SHAPE_BOUND  # measured 1.23; the issue asks for 1.25
+    assert N_SHAPE_BOUND <= nmpc["completion_time"] <= 1.45 * N_SHAPE_BOUND  # measured 1.21; the issue asks for 1.25
     # where the time went: the legs followed, past their ends until each stop was reached, waiting for plans
-    # (disjoint spans of the run; measured 14.85 + 2.2 + 0 of 18.1 s). A leg moves until its end, so each stop
+    # (disjoint spans of the run; measured 14.6 + 2.2 + 0 of 17.85 s). A leg moves until its end, so each stop
     # takes at least the rest test's 0.5 s past it (less a solve interval of 0.05 s); the robot arrives with its
     # motor still (``TrackingWeights.arrival_speed``), so hardly more (measured 0.55 s a stop, seeds 0 to 4 alike;
     # without it 0.74 to 0.92 s, here 0.92 s)
@@ -289,6 +289,24 @@ def test_learning_in_closed_loop_is_not_biased_by_the_attitude_noise():
     for name in ("M", "m", "k0"):
         truth = getattr(course.problem.params, name) / getattr(course.believed, name)
         assert learned[name] == pytest.approx(truth, rel=0.025), (name, learned, truth)
+
+
+def test_the_shell_arrives_still_on_a_robot_that_sways():
+    """Random course 73 (R = 0.147 m, the masses and damping up to 10 % off the model): the first leg ends near
+    4.5 s. Without ``arrival_omega`` the approach ends in a sideways sway of the shell (39 mm/s at 6 s, a mode the
+    motor cannot damp at rest), and the rest test passes at 18.3 s (measured); weighing the shell's angular velocity
+    past the leg's end, the robot is at rest at its first stop within 12 s (measured 8.85 s)."""
+    from rollbot_oc.courses import random_course
+
+    course = random_course(seed=0, index=73)
+    problem = course.problem.with_duration(12.0)
+    firsts = []
+    for omega in (TrackingWeights.for_waypoints().arrival_omega, 0.0):
+        settings = NMPCSettings(waypoint_weights=replace(TrackingWeights.for_waypoints(), arrival_omega=omega))
+        run = run_problem(problem, "nmpc", params=course.believed, seed=course.noise_seed, show_progress=False,
+                          settings=settings)
+        firsts.append(run.metrics["stop_times"][:1])
+    assert firsts[0] and firsts[0][0] <= 12.0 and firsts[1] == [], firsts
 
 
 def test_the_filtered_attitude_ignores_the_quaternion_sign_and_restarts_after_a_gap():

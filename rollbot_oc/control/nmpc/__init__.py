@@ -38,7 +38,10 @@ Structure (do-mpc's separation: model, controller, simulator over one model):
   between the measured and the predicted shell angular velocity (its
   Jacobian by AD); every later solve, rest and leg plan uses the estimate.
   (A robot 10 % off its model arrives at its stops swaying sideways, a mode
-  its motor cannot damp at rest: learning the model is what stops that.)
+  its motor cannot damp at rest: learning the model is what stops most of
+  that; the rest, by weighing the shell's angular velocity and the motor's
+  speed at the horizon nodes past a leg's end, ``TrackingWeights.arrival_omega``
+  and ``arrival_speed``, so that the approach itself ends still.)
 * **Delay compensation**: a measurement that is ``L`` periods old is
   predicted forward over the commands applied since.
 * **Warm start**: the previous solution shifted by one interval (primal and,

@@ -423,15 +423,19 @@ def slow_ipopt():
 
 def test_11_ctrl_c_inside_ipopt_is_an_interruption():
     solve = slow_ipopt()
+    # the handler before the block is restored after it (here Python's own: a process started in the background by
+    # a shell without job control inherits SIGINT ignored, and keeps it so)
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGINT))
     timer.start()
     try:
         with pytest.raises(Interrupted):
             with interruptible("rosenbrock"):
                 solve()  # IPOPT swallows the Ctrl-C and returns NonIpopt_Exception_Thrown
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     finally:
         timer.cancel()
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        signal.signal(signal.SIGINT, inherited)
 
 
 def test_11_cli_reports_a_swallowed_ctrl_c_as_interrupted(monkeypatch, capsys):

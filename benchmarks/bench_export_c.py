@@ -113,7 +113,7 @@ def main():
         print(f"  Python step (CasADi VM), {what:15s} ({t.size:4d}): median {np.median(t):8.1f} us  "
               f"p95 {np.percentile(t, 95):8.1f} us  max {t.max():8.1f} us")
     m = py["metrics"]
-    print(f"  the run: completed {m['completed']} in {m['completion_time']} s, stop errors "
+    print(f"  the run: completed {m['completed']} in {m['completion_time']:.2f} s, stop errors "
           f"{', '.join(f'{100 * e:.1f}' for e in m['stop_errors'])} cm")
     s = result.sizes
     print("\nCode and data (host, x86-64 gcc -O2; text includes the constant sparsity tables):")

@@ -112,15 +112,17 @@ def test_export_builds_replays_the_whole_n_shape_and_closes_the_loop_through_c(t
 
 
 def test_the_step_weighs_the_arrival_only_past_the_legs_end():
-    """The step honours ``TrackingWeights.arrival_speed`` as the NMPC does: with it the commands are those without
-    it as long as the horizon ends within the first leg, and not once it reaches past the leg's end."""
+    """The step honours the arrival weights (``TrackingWeights.arrival_speed``, ``arrival_omega``) as the NMPC does:
+    its commands are those without them as long as the horizon ends within the first leg, and not once it reaches
+    past the leg's end."""
     from rollbot_oc.export.project import embedded_controller
     from rollbot_oc.export.step import EMBEDDED_SETTINGS as s
 
+    assert s.waypoint_weights.arrival_speed > 0 and s.waypoint_weights.arrival_omega > 0
     problem = load_bundled("n_shape").with_duration(3.0)
-    arriving = replace(s, waypoint_weights=replace(s.waypoint_weights, arrival_speed=2000.0))
+    still = replace(s, waypoint_weights=replace(s.waypoint_weights, arrival_speed=0.0, arrival_omega=0.0))
     commands = []
-    for settings in (s, arriving):
+    for settings in (still, s):
         controller, step, reference = embedded_controller(problem, settings=settings, record=True)
         run_problem(problem, controller, show_progress=False)
         commands.append(np.array(controller.commands))
@@ -131,11 +133,11 @@ def test_the_step_weighs_the_arrival_only_past_the_legs_end():
     # the weights the step blends in are the NMPC's own diagonal with those nodes ended
     from rollbot_oc.export.step import _RTI
 
-    rti = _RTI(problem.params.replace(slope=0.0), arriving)
+    rti = _RTI(problem.params.replace(slope=0.0), s)
     ended = np.arange(s.N + 1) >= 10
     for name, (track, arrival, _hold) in rti.weights.items():
         expected = rti.solver._parameters(np.zeros(10), np.zeros((10, s.N + 1)), np.zeros(s.N), rti.p_nominal, None,
-                                          arriving.waypoint_weights.diagonal(s.N, ended))[name]
+                                          s.waypoint_weights.diagonal(s.N, ended))[name]
         assert np.array_equal(np.asarray(track) + (np.asarray(arrival) - np.asarray(track)) * ended, expected), name
 
 

@@ -52,7 +52,7 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.control.nmpc.estimation import TiltEstimator
-from rollbot_oc.control.nmpc.settings import NMPCSettings, TrackingWeights
+from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.tracking import RTISolver, tracking_problem
 from rollbot_oc.dynamics import NZ, OMEGA, POS, QUAT, REDUCED, THETA, THETA_DOT, motor_speed_clip, symbolic_model
 from rollbot_oc.missions.stops import StopRule
@@ -65,14 +65,11 @@ __all__ = ["EMBEDDED_SETTINGS", "STATUS", "Memory", "StepFunction", "control_ste
 # and fallbacks over the same 3 s horizon with 25 intervals of 0.12 s and one integration step each (the Python
 # NMPC's 60 of 0.05 s with two steps each follow its plans closer at several times the cost per solve and 2.4
 # times the solves; ``benchmarks/bench_export_c_result.txt`` measures this one against 30 of 0.1 s with two). Its
-# filter learns the tilt alone, from the measured attitude (fewer states to carry on the robot). It does not weigh
+# filter learns the tilt alone, from the measured attitude (fewer states to carry on the robot). It weighs
 # the driving speed and the shell's motion past a leg's end (``TrackingWeights.arrival_speed`` and
-# ``arrival_omega``, which the step honours): on its 0.12 s intervals and legs planned before the run, the N-shape
-# took longer with the first (seeds 0 to 3, sum of times: 116.8 s without, 122.6 s with 200 s^2/rad^2, 124.4 s with
-# the NMPC's 2000); the second is not measured on the step.
-EMBEDDED_SETTINGS = NMPCSettings(N=25, h=0.12, substeps=1, max_failures=3, learn=(), attitude_gain=1.0,
-                                 waypoint_weights=replace(TrackingWeights.for_waypoints(), arrival_speed=0.0,
-                                                          arrival_omega=0.0))
+# ``arrival_omega``) as the NMPC does: the N-shape's seeds 0 to 3 took 83.3 s in all with both, 92.5 s with the
+# shell's alone, 116.8 s without either and 124.4 s with the motor's alone.
+EMBEDDED_SETTINGS = NMPCSettings(N=25, h=0.12, substeps=1, max_failures=3, learn=(), attitude_gain=1.0)
 
 HISTORY = 4  # commands remembered: delay compensation over up to HISTORY - 1 periods of latency
 STATUS = {0: "solved", 1: "between solves", 2: "QP failed: previous plan", 3: "brake", 4: "done"}
@@ -231,7 +228,7 @@ class _RTI:
         w, lam_w, lam_g = ca.MX.sym("w", n), ca.MX.sym("lam_w", n), ca.MX.sym("lam_g", m)
         warm, z0 = ca.MX.sym("warm"), ca.MX.sym("z0", NZ)
         Zr, Ur, hold = ca.MX.sym("Zr", NZ, N + 1), ca.MX.sym("Ur", 1, N), ca.MX.sym("hold", 1, N + 1)
-        ended = ca.MX.sym("ended", 1, N + 1)  # the nodes past the leg's end (``TrackingWeights.arrival_speed``)
+        ended = ca.MX.sym("ended", 1, N + 1)  # the nodes past the leg's end (``TrackingWeights.arrives``)
         tilt = ca.MX.sym("tilt", 2)
         # q and -q are the same attitude: give the reference the measurement's sign
         sign = ca.if_else(ca.dot(Zr[REDUCED.quaternion, 0], z0[REDUCED.quaternion]) < 0, -1, 1)

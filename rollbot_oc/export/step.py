@@ -67,8 +67,9 @@ __all__ = ["EMBEDDED_SETTINGS", "STATUS", "Memory", "StepFunction", "control_ste
 # times the solves; ``benchmarks/bench_export_c_result.txt`` measures this one against 30 of 0.1 s with two). Its
 # filter learns the tilt alone, from the measured attitude (fewer states to carry on the robot). It weighs
 # the driving speed and the shell's motion past a leg's end (``TrackingWeights.arrival_speed`` and
-# ``arrival_omega``) as the NMPC does: the N-shape's seeds 0 to 3 took 83.3 s in all with both, 92.5 s with the
-# shell's alone, 116.8 s without either and 124.4 s with the motor's alone.
+# ``arrival_omega``) as the NMPC does: measured 2026-12-03 (``benchmarks/bench_export_c_result.txt``), the N-shape's
+# seeds 0 to 3 took 83.3 s in all with both, 92.5 s with the shell's alone, 116.8 s without either and 124.4 s with
+# the motor's alone.
 EMBEDDED_SETTINGS = NMPCSettings(N=25, h=0.12, substeps=1, max_failures=3, learn=(), attitude_gain=1.0)
 
 HISTORY = 4  # commands remembered: delay compensation over up to HISTORY - 1 periods of latency

@@ -41,7 +41,7 @@ class TrackingWeights:
         motor that swings back rocks the shell, and the rest test waits.
     arrival_omega : float
         Stops: shell angular-velocity weight at the same nodes, s^2/rad^2
-        (``omega`` if that is larger).  With it the NMPC plans the approach so
+        (``omega`` if that is larger; 0: ``omega`` there too).  With it the NMPC plans the approach so
         that the shell, too, arrives still: a robot that arrives swaying
         sideways cannot damp that sway at rest (the mode is uncontrollable
         there, ``tests/test_stability.py``) and waits for it to die out.
@@ -85,7 +85,7 @@ class TrackingWeights:
 
     @property
     def arrives(self) -> bool:
-        """Whether the nodes past a leg's end weigh more than the others (``arrival_speed``, ``arrival_omega``)."""
+        """Whether an arrival weight is set (``arrival_speed`` or ``arrival_omega`` above 0)."""
         return self.arrival_speed > 0 or self.arrival_omega > 0
 
     def diagonal(self, N: int, ended: np.ndarray | None = None) -> np.ndarray:

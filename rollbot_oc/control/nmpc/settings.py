@@ -195,7 +195,8 @@ class NMPCSettings:
         How long after a leg's plan ends a robot nearly at rest (see
         ``recover_speed``) outside its stop's tolerance waits before it gets a
         new leg to the same stop, s (it never moves on from a stop it has not
-        reached).
+        reached; a robot at rest that late seldom creeps into the tolerance:
+        ``benchmarks/bench_robustness_result.md`` item 11).
     replan_distance, replan_interval : float
         A robot pushed more than ``replan_distance`` (m) off its plan gets a
         new leg to its stop from where it is, at most once per
@@ -350,7 +351,7 @@ class NMPCSettings:
     gyro_sigma: float = 2e-3
     tilt_model_error: float = 0.1
     attitude_gain: float = 0.05
-    hold_time: float = 1.0
+    hold_time: float = 0.3
     hold_radius: float = 0.05
     replan_distance: float = 0.15
     replan_angle: float = 0.2

@@ -452,6 +452,47 @@ def test_a_failed_refinement_of_the_first_guess_is_planned_again_further_along(m
     assert m["completed"] and max(m["stop_errors"]) <= 0.07
 
 
+def test_a_robot_at_rest_away_from_its_stop_is_replanned_after_the_hold_time(monkeypatch):
+    """The first leg's guess is aimed 0.3 m short of the stop and its refinements fail: the robot rides the
+    guess to its end and comes to rest away from the stop.  It gets a new leg from there ``hold_time`` after
+    the guess's end (not before, and not seconds later), and reaches the stop at rest."""
+    from rollbot_oc.control.nmpc import loop
+
+    solve, aim = RestToRest.solve, loop.quasi_stable_guess
+    stop = np.asarray(load_problem(PROBLEMS / "n_shape.toml").mission.stops[0], float)
+
+    def short_guess(z, goal, *args, **kwargs):
+        start = np.asarray(z[REDUCED.position], float)
+        towards = np.asarray(goal, float) - start
+        return aim(z, goal - 0.3 * towards / np.linalg.norm(towards), *args, **kwargs)
+
+    def refinements_fail(self, start, goal, guess=None, *args, **kwargs):
+        moving = np.linalg.norm(np.asarray(start, float)[REDUCED.velocity]) > 0  # (a leg from rest is planned)
+        if guess is not None and guess.status == "guess" and moving:
+            raise SolveFailed("injected", "Maximum_Iterations_Exceeded", None)
+        return solve(self, start, goal, guess, *args, **kwargs)
+
+    brakes, brake = [], NMPC._brake
+
+    def record(self, z, t_now, *args, **kwargs):
+        plan = self.reference.segments[self.segment][0]
+        brakes.append((t_now - self.segment_start - plan.T, float(np.linalg.norm(z[REDUCED.position] - stop)),
+                       bool(plan.extra.get("provisional"))))
+        return brake(self, z, t_now, *args, **kwargs)
+
+    monkeypatch.setattr(loop, "quasi_stable_guess", short_guess)
+    monkeypatch.setattr(RestToRest, "solve", refinements_fail)
+    monkeypatch.setattr(NMPC, "_brake", record)
+    base = load_problem(PROBLEMS / "n_shape.toml")
+    problem = replace(base, mission=Waypoints(tuple(base.mission.points[:1])), duration=30.0)
+    m = run_problem(problem, "nmpc").metrics
+    hold = NMPCSettings().hold_time
+    after, away, provisional = brakes[0]
+    assert provisional and away > 0.07  # at the guess's end, outside the tolerance
+    assert hold - 1e-9 <= after <= hold + 0.5  # replanned once the hold time has passed (at rest by then)
+    assert m["completed"] and max(m["stop_errors"]) <= 0.07
+
+
 def test_a_state_no_command_keeps_within_the_limits_gets_a_relaxed_solve():
     """The pendulum swung 60 deg and a torque margin of 1 %: no acceleration within the motor's limit keeps the
     torque that small, so the QP is infeasible; it is solved once more without the path constraints, and the

@@ -459,7 +459,8 @@ def test_a_robot_at_rest_away_from_its_stop_is_replanned_after_the_hold_time(mon
     from rollbot_oc.control.nmpc import loop
 
     solve, aim = RestToRest.solve, loop.quasi_stable_guess
-    stop = np.asarray(load_problem(PROBLEMS / "n_shape.toml").mission.stops[0], float)
+    base = load_problem(PROBLEMS / "n_shape.toml")
+    stop = np.asarray(base.mission.stops[0], float)
 
     def short_guess(z, goal, *args, **kwargs):
         start = np.asarray(z[REDUCED.position], float)
@@ -483,7 +484,6 @@ def test_a_robot_at_rest_away_from_its_stop_is_replanned_after_the_hold_time(mon
     monkeypatch.setattr(loop, "quasi_stable_guess", short_guess)
     monkeypatch.setattr(RestToRest, "solve", refinements_fail)
     monkeypatch.setattr(NMPC, "_brake", record)
-    base = load_problem(PROBLEMS / "n_shape.toml")
     problem = replace(base, mission=Waypoints(tuple(base.mission.points[:1])), duration=30.0)
     m = run_problem(problem, "nmpc").metrics
     hold = NMPCSettings().hold_time

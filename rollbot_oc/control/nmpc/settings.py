@@ -35,16 +35,18 @@ class TrackingWeights:
         Factor on the state weights at the end of the horizon.
     arrival_speed : float
         Stops: driving-speed weight at the horizon nodes past the end of the
-        leg, s^2/rad^2 (``speed`` if that is larger; 0: ``speed`` there too).  With it the NMPC plans the
-        last braking so that the motor stands still on arrival, instead of
-        overshooting the plan's zero speed by a fraction of an interval: a
-        motor that swings back rocks the shell, and the rest test waits.
+        leg, s^2/rad^2 (``speed`` if that is larger; 0: ``speed`` there too).
+        With it the NMPC plans the last braking so that the motor stands still
+        on arrival, instead of overshooting the plan's zero speed by a fraction
+        of an interval: a motor that swings back rocks the shell, and the rest
+        test waits.
     arrival_omega : float
         Stops: shell angular-velocity weight at the same nodes, s^2/rad^2
-        (``omega`` if that is larger; 0: ``omega`` there too).  With it the NMPC plans the approach so
-        that the shell, too, arrives still: a robot that arrives swaying
-        sideways cannot damp that sway at rest (the mode is uncontrollable
-        there, ``tests/test_stability.py``) and waits for it to die out.
+        (``omega`` if that is larger; 0: ``omega`` there too).  With it the
+        NMPC plans the approach so that the shell, too, arrives still: a robot
+        that arrives swaying sideways cannot damp that sway at rest (the mode
+        is uncontrollable there, ``tests/test_stability.py``) and waits for it
+        to die out.
     """
 
     position: float = 400.0

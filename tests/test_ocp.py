@@ -1,6 +1,8 @@
 """Offline trajectory optimisation: constraints hold, plans are feasible in the plant, guesses are physical."""
 
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -93,6 +95,22 @@ def test_the_fastest_of_several_starts_is_no_slower_than_the_first():
     best = ocp.fastest(start, [0.0, 0.0], starts=2)
     assert best.success and best.T <= single.T + 1e-6
     assert best.iterations >= single.iterations  # the total over the starts
+
+
+def test_failed_starts_resumed_from_where_they_stopped_reach_the_same_plan():
+    """``fastest(resumes=...)``: starts cut off by the iteration limit are solved again from their last
+    iterates; the first to converge is the leg the uncapped solver finds, and its iterations count them all.
+    Without resumes the same starts fail."""
+    start, goal = rest_state(PARAMS, position=(-0.3, -0.3)), [0.0, 0.0]
+    settings = OCPSettings(N=40, accel_margin=0.85, expand=True)  # the NMPC's legs
+    uncapped = RestToRest(PARAMS, settings).fastest(start, goal, starts=2)
+    capped = RestToRest(PARAMS, replace(settings, max_iter=30))
+    with pytest.raises(SolveFailed, match="Maximum_Iterations_Exceeded"):
+        capped.fastest(start, goal, starts=2)
+    resumed = capped.fastest(start, goal, starts=2, resumes=2)
+    assert resumed.success and resumed.T == pytest.approx(uncapped.T, abs=1e-4)
+    assert np.abs(resumed.z[0:2, -1] - goal).max() <= settings.goal_tolerance + 1e-6
+    assert 2 * 30 < resumed.iterations <= 4 * 30  # both failed starts, and the resumed ones
 
 
 def test_a_gentler_plan_keeps_to_its_scaled_motor_limits_and_takes_longer(leg):

@@ -338,13 +338,20 @@ class RestToRest(_MinTimeOCP):
             raise SolveFailed(f"rest-to-rest plan to {goal.tolist()}", plan.status, plan)
         return plan
 
-    def fastest(self, start, goal, starts: int = 3, tilt=None, motor_scale: float = 1.0, model=None) -> Plan:
+    def fastest(self, start, goal, starts: int = 3, tilt=None, motor_scale: float = 1.0, model=None,
+                resumes: int = 0) -> Plan:
         """The fastest of the minimum-time plans found from the ``starts`` best quasi-stable guesses.
 
         A minimum-time leg has local optima, and the guess decides which one
         IPOPT finds; a few starts make the result much less a matter of luck.
-        The plan's ``iterations`` and ``solve_time`` are the totals over the
-        starts; ``tilt``, ``motor_scale`` and ``model`` as for ``solve``.
+        If none converges, up to ``resumes`` of them (best guess first) are
+        solved again from where their IPOPT stopped, and the first of those to
+        converge is the plan: a fresh start from a failed iterate (its barrier
+        parameter and quasi-Newton memory reset) often converges where the
+        first run stalled with tiny steps
+        (``benchmarks/bench_robustness_result.md`` item 12).  The plan's
+        ``iterations`` and ``solve_time`` are the totals over the starts;
+        ``tilt``, ``motor_scale`` and ``model`` as for ``solve``.
 
         Raises
         ------
@@ -353,17 +360,29 @@ class RestToRest(_MinTimeOCP):
         """
         z0 = _reduced(start)
         goal = np.asarray(goal, float)
-        best, failure, iterations, seconds = None, None, 0, 0.0
-        for guess in quasi_stable_guesses(z0, goal, self.params, self.settings.N, starts):
+        best, failures, iterations, seconds = None, [], 0, 0.0
+
+        def attempt(guess):
+            nonlocal iterations, seconds
             try:
                 plan = self.solve(z0, goal, guess=guess, tilt=tilt, motor_scale=motor_scale, model=model)
             except SolveFailed as exc:
-                failure, plan = exc, exc.plan
+                failures.append(exc)
+                plan = exc.plan
             iterations += plan.iterations if plan is not None else 0
             seconds += plan.solve_time if plan is not None else 0.0
-            if plan is not None and plan.success and (best is None or plan.T < best.T):
+            return plan if plan is not None and plan.success else None
+
+        for guess in quasi_stable_guesses(z0, goal, self.params, self.settings.N, starts):
+            plan = attempt(guess)
+            if plan is not None and (best is None or plan.T < best.T):
                 best = plan
+        for failed in [exc.plan for exc in failures if exc.plan is not None][:resumes if best is None else 0]:
+            best = attempt(failed)
+            if best is not None:
+                break
         if best is None:
+            failure = failures[-1]
             failure.plan.iterations, failure.plan.solve_time = iterations, seconds
             raise failure
         best.iterations, best.solve_time = iterations, seconds

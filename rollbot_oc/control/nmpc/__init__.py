@@ -10,7 +10,8 @@ Structure (do-mpc's separation: model, controller, simulator over one model):
   first takes over where it starts (else it is planned again from further
   along).  The next ``legs_ahead`` legs are planned ahead, one after the
   other by one modelled planner (each the fastest of ``plan_starts`` starts,
-  from the rest state the leg before ends in, on the tilt estimated by then),
+  failed starts resumed where they stopped (``plan_resumes``), from the rest
+  state the leg before ends in, on the tilt estimated by then),
   and each is used only once its modelled compute time has passed; legs end
   balanced on the estimated floor.
 * **Recovery**: a robot pushed off its plan is first brought to rest where

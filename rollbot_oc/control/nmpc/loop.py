@@ -312,7 +312,8 @@ class NMPC(ControllerBase):
 
         def attempt(goal):  # a refinement from its guess, or the fastest of several starts
             return self._legs.solve(z_start, goal, guess=guess, model=model) if guess is not None \
-                else self._legs.fastest(z_start, goal, s.plan_starts, motor_scale=scale, model=model)
+                else self._legs.fastest(z_start, goal, s.plan_starts, motor_scale=scale, model=model,
+                                        resumes=s.plan_resumes)
 
         plan, iterations, tried = self._first_converged([functools.partial(attempt, goal) for goal in goals])
         goal = goals[tried - 1]

@@ -267,6 +267,10 @@ class NMPCSettings:
     plan_starts : int
         A leg planned ahead is solved from this many quasi-stable guesses, and
         the fastest result is kept.
+    plan_resumes : int
+        If none of a leg's ``plan_starts`` converges, up to this many of them
+        are solved again from where they stopped before the leg is given up
+        for a stepping stone (``RestToRest.fastest``).
     stone_distance : float
         A leg from rest to a stop farther than this that cannot be planned is
         planned instead to a stepping stone this far towards the stop (a
@@ -371,6 +375,7 @@ class NMPCSettings:
     plan_ahead: float = 0.0
     plan_iteration_time: float = 0.008
     plan_starts: int = 3
+    plan_resumes: int = 3
     legs_ahead: int = 2
     stone_distance: float = 0.6
     caution: float = 0.9

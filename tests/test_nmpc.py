@@ -452,6 +452,33 @@ def test_a_failed_refinement_of_the_first_guess_is_planned_again_further_along(m
     assert m["completed"] and max(m["stop_errors"]) <= 0.07
 
 
+def test_the_first_refinement_starts_where_the_robot_will_be_not_where_the_guess_is(monkeypatch):
+    """On random course 13 (a robot 10 % off its model) the robot holding to the first leg's guess spins its
+    motor at -7.4 rad/s where the guess has -3.0.  The refinement is planned from the state the tracking
+    NMPC predicts for its handover: nearer the robot's true state then, in driving speed and position, than
+    the guess's state is."""
+    from rollbot_oc.courses import random_course
+    from rollbot_oc.dynamics import to_reduced
+
+    launched, launch = [], NMPC._launch
+
+    def record(self, segment, t_now, t_start, z_start, guess=None):
+        if guess is not None:  # a refinement of the guess followed now
+            on_guess = self.reference.segments[self.segment][0].state(t_start - self.segment_start)
+            launched.append((t_start, np.array(z_start, float), on_guess))
+        return launch(self, segment, t_now, t_start, z_start, guess)
+
+    monkeypatch.setattr(NMPC, "_launch", record)
+    course = random_course(seed=0, index=13)
+    run = run_problem(course.problem, "nmpc", params=course.believed, seed=course.noise_seed, duration=2.0)
+    t_start, planned, on_guess = launched[0]
+    true = to_reduced(run.result.x[:, int(round(t_start / run.result.dt))])
+    drive, position = REDUCED.theta_dot, REDUCED.position
+    assert abs(true[drive] - on_guess[drive]) > 3.0  # the robot is far off the guess's motor speed ...
+    assert abs(true[drive] - planned[drive]) < 0.2 * abs(true[drive] - on_guess[drive])  # ... not the plan's
+    assert np.linalg.norm(true[position] - planned[position]) < np.linalg.norm(true[position] - on_guess[position])
+
+
 def test_a_robot_at_rest_away_from_its_stop_is_replanned_after_the_hold_time(monkeypatch):
     """The first leg's guess is aimed 0.3 m short of the stop and its refinements fail: the robot rides the
     guess to its end and comes to rest away from the stop.  It gets a new leg from there ``hold_time`` after

@@ -5,8 +5,8 @@ Structure (do-mpc's separation: model, controller, simulator over one model):
 * **Plans** (``control.ocp``), computed as the robot moves: for stops, the
   first leg starts at once on its quasi-stable guess (a simulation of the
   model, a fraction of a second); once the tilt estimate has settled
-  (``tilt_settle``) minimum-time legs are refined from where the guess will
-  be each of ``plan_handovers`` later, and the one ready in time that arrives
+  (``tilt_settle``) minimum-time legs are refined from where the tracking
+  NMPC predicts the robot will be each of ``plan_handovers`` later, and the one ready in time that arrives
   first takes over where it starts (else it is planned again from further
   along).  The next ``legs_ahead`` legs are planned ahead, one after the
   other by one modelled planner (each the fastest of ``plan_starts`` starts,

@@ -272,9 +272,13 @@ class NMPC(ControllerBase):
         self._refine_at = t_now + s.tilt_settle
 
     def _refine(self, t_now: float):
-        """Plan the minimum-time leg from where the guess followed now will be each of ``plan_handovers`` s
-        later (those within the guess), one after the other; the one ready in time that arrives first takes
-        over where it starts (``_take_pending``)."""
+        """Plan the minimum-time leg from where the robot following the guess will be each of ``plan_handovers``
+        s later (those within the guess), one after the other; the one ready in time that arrives first takes
+        over where it starts (``_take_pending``).  The start is the state the tracking NMPC's last solution
+        predicts for that instant (``_predicted``; the guess's own state if beyond its horizon): the robot
+        holding to the guess on a plant unlike the model drives its motor off the guess's speed (course 13:
+        -7.4 against -3.0 rad/s), and a leg planned from the guess's state then starts where the robot is
+        not.  The guess's tail, moved to start at the predicted position, is the solver's initial guess."""
         self._refine_at = None
         guess = self.reference.segments[self.segment][0]
         best = None
@@ -282,8 +286,12 @@ class NMPC(ControllerBase):
             handover = t_now - self.segment_start + ahead
             if handover >= guess.T - ahead:
                 continue
-            self._launch(self.segment, t_now, self.segment_start + handover, guess.state(handover),
-                         guess.tail(handover, self.settings.plan.N))
+            z_start, tail = self._predicted(t_now + ahead), guess.tail(handover, self.settings.plan.N)
+            if z_start is None:
+                z_start = guess.state(handover)
+            else:
+                tail.z[REDUCED.position] += (z_start[REDUCED.position] - tail.z[REDUCED.position, 0])[:, None]
+            self._launch(self.segment, t_now, self.segment_start + handover, z_start, tail)
             candidate = self._pending.pop(self.segment)
             if candidate["plan"] is None:
                 continue
@@ -294,6 +302,15 @@ class NMPC(ControllerBase):
             self._pending[self.segment] = best[1]
         elif any(t_now - self.segment_start + ahead < guess.T - ahead for ahead in self.settings.plan_handovers):
             self._refine_at = max(self._planner_free, t_now + self.settings.h)  # failed: again once computed
+
+    def _predicted(self, t: float):
+        """The reduced state (10,) the tracking NMPC's last successful solve predicts for the time ``t`` (s),
+        or None if that is beyond its horizon (or there is none)."""
+        if self._prediction is None:
+            return None
+        Z, solved = self._prediction
+        node = int(round((t - solved) / self.settings.h))
+        return Z[:, node].copy() if 0 <= node < Z.shape[1] else None
 
     def _launch(self, segment: int, t_now: float, t_start, z_start, guess=None):
         """Plan leg ``segment`` from ``z_start`` on the estimated floor with the learned model
@@ -431,6 +448,7 @@ class NMPC(ControllerBase):
         self.k = 0
         self.warm = None
         self.current = None  # (U, index of the interval in use)
+        self._prediction = None  # (Z (10, N+1), solve instant, s): the states the last solve predicts
         self.commands: dict[int, float] = {}
         self.previous = None
         self.failures = 0
@@ -650,8 +668,9 @@ class NMPC(ControllerBase):
         self.log["statuses"].append(status)
         self.log["tilt"].append(self.estimator.tilt.tolist())
         if ok and not late:
-            _, U = self.solver.split(x)
+            Z, U = self.solver.split(x)
             self.current = (U, k)
+            self._prediction = (Z, t_now)
             self.warm = (self.solver.shift(x), *lam)  # duals unshifted: the structure repeats every interval
             self.failures = 0
             return

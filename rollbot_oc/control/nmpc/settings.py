@@ -239,8 +239,9 @@ class NMPCSettings:
     plan_handovers : tuple of float
         A leg planned from where the robot is (the first, or a replan) starts
         at once on the quasi-stable guess (a full-model simulation); minimum-time
-        legs are refined from where the guess will be each of these times
-        later, s, one after the other (a minimum-time leg has local optima,
+        legs are refined from where the tracking NMPC predicts the robot
+        following the guess will be each of these times later, s, one after
+        the other (a minimum-time leg has local optima,
         and where it starts decides which one IPOPT finds); of those ready in
         time, the one that arrives first takes over where it starts.  The
         default, 1.2 s, is the modelled time of the planner's longest solve

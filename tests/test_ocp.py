@@ -111,6 +111,8 @@ def test_failed_starts_resumed_from_where_they_stopped_reach_the_same_plan():
     assert resumed.success and resumed.T == pytest.approx(uncapped.T, abs=1e-4)
     assert np.abs(resumed.z[0:2, -1] - goal).max() <= settings.goal_tolerance + 1e-6
     assert 2 * 30 < resumed.iterations <= 4 * 30  # both failed starts, and the resumed ones
+    with pytest.raises(ValueError, match="resumes"):
+        capped.fastest(start, goal, starts=2, resumes=-1)
 
 
 def test_a_gentler_plan_keeps_to_its_scaled_motor_limits_and_takes_longer(leg):

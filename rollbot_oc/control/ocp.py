@@ -344,11 +344,11 @@ class RestToRest(_MinTimeOCP):
 
         A minimum-time leg has local optima, and the guess decides which one
         IPOPT finds; a few starts make the result much less a matter of luck.
-        If none converges, up to ``resumes`` of them (best guess first) are
-        solved again from where their IPOPT stopped, and the first of those to
-        converge is the plan: a fresh start from a failed iterate (its barrier
-        parameter and quasi-Newton memory reset) often converges where the
-        first run stalled with tiny steps
+        If none converges, up to ``resumes`` of them (best guess first, whatever
+        their status) are solved again from where their IPOPT stopped, and the
+        first of those to converge is the plan: a fresh start from a failed
+        iterate (its barrier parameter and quasi-Newton memory reset) often
+        converges where the first run stalled with tiny steps
         (``benchmarks/bench_robustness_result.md`` item 12).  The plan's
         ``iterations`` and ``solve_time`` are the totals over the starts;
         ``tilt``, ``motor_scale`` and ``model`` as for ``solve``.
@@ -358,6 +358,8 @@ class RestToRest(_MinTimeOCP):
         SolveFailed
             If no start converges (the last failure's status).
         """
+        if starts < 1 or resumes < 0:
+            raise ValueError(f"starts = {starts!r} must be at least 1 and resumes = {resumes!r} at least 0")
         z0 = _reduced(start)
         goal = np.asarray(goal, float)
         best, failures, iterations, seconds = None, [], 0, 0.0

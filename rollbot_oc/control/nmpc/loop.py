@@ -680,6 +680,7 @@ class NMPC(ControllerBase):
             self.log["fallback_shifted"] += 1  # keep following the previous solution (its index moves on)
             return
         self.warm, self.current, self.failures = None, None, 0
+        self._prediction = None  # no solution acts now: a refinement starts from the guess's own state
         if self.mission.stops and s.fallback == "brake":
             # the motor's speed ramped to zero for a moment, then the NMPC brings the robot to rest and
             # plans a new leg from there (``_advance_mission``)

@@ -293,9 +293,11 @@ def test_learning_in_closed_loop_is_not_biased_by_the_attitude_noise():
 
 def test_the_shell_arrives_still_on_a_robot_that_sways():
     """Random course 73 (R = 0.147 m, the masses and damping up to 10 % off the model): the first leg ends near
-    4.5 s. Without ``arrival_omega`` the approach ends in a sideways sway of the shell (39 mm/s at 6 s, a mode the
-    motor cannot damp at rest), and the rest test passes at 18.3 s; weighing the shell's angular velocity past the
-    leg's end, the robot is at rest at its first stop within 12 s (8.85 s; figures measured at commit 0b6ceff)."""
+    4.5 s. Weighing the shell's angular velocity past the leg's end (``arrival_omega``), the robot is at rest at
+    its first stop sooner than without, and within 12 s.  At commit 0b6ceff the approach without the weight
+    ended in a sideways sway of the shell (39 mm/s at 6 s, a mode the motor cannot damp at rest) and the rest
+    test passed at 18.3 s, against 8.85 s with it; since the first leg's refinement starts from the state the
+    tracking NMPC predicts (b0f0160) the approach sways less: 6.01 s without the weight, 5.3 s with it."""
     from rollbot_oc.courses import random_course
 
     course = random_course(seed=0, index=73)
@@ -306,7 +308,7 @@ def test_the_shell_arrives_still_on_a_robot_that_sways():
         run = run_problem(problem, "nmpc", params=course.believed, seed=course.noise_seed, show_progress=False,
                           settings=settings)
         firsts.append(run.metrics["stop_times"][:1])
-    assert firsts[0] and firsts[0][0] <= 12.0 and firsts[1] == [], firsts
+    assert firsts[0] and firsts[0][0] <= 12.0 and (firsts[1] == [] or firsts[0][0] < firsts[1][0]), firsts
 
 
 def test_the_filtered_attitude_ignores_the_quaternion_sign_and_restarts_after_a_gap():

@@ -379,10 +379,11 @@ class RestToRest(_MinTimeOCP):
             plan = attempt(guess)
             if plan is not None and (best is None or plan.T < best.T):
                 best = plan
-        for failed in [exc.plan for exc in failures if exc.plan is not None][:resumes if best is None else 0]:
-            best = attempt(failed)
-            if best is not None:
-                break
+        if best is None:  # every start failed: resume them, best guess first, until one converges
+            for failed in [exc.plan for exc in failures if exc.plan is not None][:resumes]:
+                best = attempt(failed)
+                if best is not None:
+                    break
         if best is None:
             failure = failures[-1]
             failure.plan.iterations, failure.plan.solve_time = iterations, seconds

@@ -6,9 +6,9 @@ Structure (do-mpc's separation: model, controller, simulator over one model):
   first leg starts at once on its quasi-stable guess (a simulation of the
   model, a fraction of a second); once the tilt estimate has settled
   (``tilt_settle``) minimum-time legs are refined from where the tracking
-  NMPC predicts the robot will be each of ``plan_handovers`` later, and the one ready in time that arrives
-  first takes over where it starts (else it is planned again from further
-  along).  The next ``legs_ahead`` legs are planned ahead, one after the
+  NMPC predicts the robot will be each of ``plan_handovers`` later, and the
+  one ready in time that arrives first takes over where it starts (else it
+  is planned again from further along).  The next ``legs_ahead`` legs are planned ahead, one after the
   other by one modelled planner (each the fastest of ``plan_starts`` starts,
   failed starts resumed where they stopped (``plan_resumes``), from the rest
   state the leg before ends in, on the tilt estimated by then),

@@ -241,9 +241,9 @@ class NMPCSettings:
         at once on the quasi-stable guess (a full-model simulation); minimum-time
         legs are refined from where the tracking NMPC predicts the robot
         following the guess will be each of these times later, s, one after
-        the other (a minimum-time leg has local optima,
-        and where it starts decides which one IPOPT finds); of those ready in
-        time, the one that arrives first takes over where it starts.  The
+        the other (a minimum-time leg has local optima, and where it starts
+        decides which one IPOPT finds); of those ready in time, the one that
+        arrives first takes over where it starts.  The
         default, 1.2 s, is the modelled time of the planner's longest solve
         (``plan.max_iter`` iterations of ``plan_iteration_time``): a refinement
         that converges is never late.

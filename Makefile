@@ -18,7 +18,7 @@ demo: $(STAMP)  ## the main job: writes figures and JSON into out/
 	$(BIN)/rollbot-oc demo --out out
 
 test: $(STAMP)  ## the whole test suite
-	$(BIN)/python -m pytest -n 2 --durations=15
+	$(BIN)/python -m pytest -n 2 --dist worksteal --durations=25
 
 bench: $(STAMP)  ## benchmarks (medians over repeated runs)
 	for script in benchmarks/bench_*.py; do $(BIN)/python $$script || exit 1; done

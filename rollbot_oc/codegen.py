@@ -3,7 +3,7 @@
 CasADi evaluates SX Functions in its virtual machine; the same Function
 generated as C and compiled runs several times faster (``benchmarks/`` and
 the README give the figures).  Compiling takes seconds to a minute, so the shared library is cached on disk under a name derived
-from the generated code (so a changed model compiles anew), in
+from the Function's serialised expression graph (so a changed model compiles anew), in
 ``$ROLLBOT_OC_CACHE`` or ``~/.cache/rollbot_oc``.
 
 The cache is safe to share and hard to break:
@@ -106,6 +106,14 @@ def _build(cc: str, source: Path, target: Path, flags: tuple[str, ...]) -> str |
     return None  # ... then its checksum: a library without a matching checksum is never loaded
 
 
+def _key(fun: ca.Function, flags: tuple[str, ...], jacobian: bool) -> str:
+    """The library's name in the cache: a digest of the Function's serialised expression graph (the same graph
+    generates the same C; serialising takes milliseconds where generating the C of a large Function and its
+    Jacobian takes a second), the flags, whether the Jacobian is in, and the CasADi version."""
+    text = f"{fun.serialize()} {' '.join(flags)} jacobian={jacobian} {ca.__version__}"
+    return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
 def compiled(fun: ca.Function, flags: tuple[str, ...] = ("-O1",), jacobian: bool = False) -> ca.Function:
     """``fun`` as a compiled C library (built once and cached), or ``fun`` itself if that cannot be done.
 
@@ -133,27 +141,26 @@ def compiled(fun: ca.Function, flags: tuple[str, ...] = ("-O1",), jacobian: bool
     folder = cache_dir()
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory() as tmp:
+        key = _key(fun, flags, jacobian)
+        target = folder / f"{name}_{key}.so"
+        loaded = _load(name, target)  # the common case: built before, no lock and no code generated
+        if loaded is not None:
+            return loaded
+        with _locked(folder / f"{name}_{key}.lock"), tempfile.TemporaryDirectory() as tmp:
+            loaded = _load(name, target)  # another process may have built it while we waited
+            if loaded is not None:
+                return loaded
             source = Path(tmp) / f"{name}.c"
             gen = ca.CodeGenerator(source.name, {"with_header": False})
             gen.add(fun)
             if jacobian:
                 gen.add(fun.jacobian())
             gen.generate(tmp + os.sep)
-            key = hashlib.sha1((source.read_text() + " ".join(flags) + ca.__version__).encode()).hexdigest()[:16]
-            target = folder / f"{name}_{key}.so"
-            loaded = _load(name, target)  # the common case: built before, no lock needed
+            problem = _build(cc, source, target, flags)
+            loaded = None if problem else _load(name, target)
             if loaded is not None:
                 return loaded
-            with _locked(folder / f"{name}_{key}.lock"):
-                loaded = _load(name, target)  # another process may have built it while we waited
-                if loaded is not None:
-                    return loaded
-                problem = _build(cc, source, target, flags)
-                loaded = None if problem else _load(name, target)
-                if loaded is not None:
-                    return loaded
-                problem = problem or "the compiled library does not load"
+            problem = problem or "the compiled library does not load"
     except (FileExistsError, NotADirectoryError):
         problem = f"cache folder {folder}: a file is in the way"
     except OSError as exc:

@@ -130,7 +130,7 @@ def make_report(out: str | Path = "out", params: RollbotParams | None = None, qu
     step("animation of the NMPC run")
     nmpc_run = runs[1]
     animate_run(nmpc_run.result, out / "n_shape_nmpc.gif", centres=nmpc_run.centres, targets=problem.mission.stops,
-                title=run_title(nmpc_run), frames=40 if quick else 120)
+                title=run_title(nmpc_run), frames=20 if quick else 120)
 
     step("report")
     q = summary["quasi_stable"]

@@ -80,9 +80,13 @@ def test_arrival_weights_weigh_only_the_nodes_past_the_leg():
 
 @pytest.mark.parametrize("name", ["circle_R020", "circle_R065"])  # the extremes (the README measures all four)
 def test_circles_half_the_pid_deviation(name):
-    problem = load_problem(PROBLEMS / f"{name}.toml").with_duration(165.0)  # 45 s measured after settling
-    nmpc = run_problem(problem, "nmpc").metrics
-    pid = run_problem(problem, "pid").metrics
+    """Each controller measured over 45 s once settled: the PID from the paper's 120 s, the NMPC, which plans
+    its entry onto the circle, from 30 s (both from reaching the circle if that is later)."""
+    problem = load_problem(PROBLEMS / f"{name}.toml")
+    pid = run_problem(problem.with_duration(165.0), "pid").metrics
+    nmpc_problem = replace(problem, mission=replace(problem.mission, settle_time=30.0), duration=75.0)
+    nmpc = run_problem(nmpc_problem, "nmpc").metrics
+    assert nmpc["reach_time"] <= 30.0
     assert nmpc["completed"] and pid["completed"]
     assert nmpc["avg_deviation"] <= 0.5 * pid["avg_deviation"]
     check_plant_limits(nmpc)
@@ -294,21 +298,22 @@ def test_learning_in_closed_loop_is_not_biased_by_the_attitude_noise():
 def test_the_shell_arrives_still_on_a_robot_that_sways():
     """Random course 73 (R = 0.147 m, the masses and damping up to 10 % off the model): the first leg ends near
     4.5 s. Weighing the shell's angular velocity past the leg's end (``arrival_omega``), the robot is at rest at
-    its first stop sooner than without, and within 12 s.  At commit 0b6ceff the approach without the weight
+    its first stop sooner than without, and within 7.5 s (the rest test then holds by the run's 8 s).  At commit 0b6ceff the approach without the weight
     ended in a sideways sway of the shell (39 mm/s at 6 s, a mode the motor cannot damp at rest) and the rest
     test passed at 18.3 s, against 8.85 s with it; since the first leg's refinement starts from the state the
     tracking NMPC predicts (b0f0160) the approach sways less: 6.01 s without the weight, 5.3 s with it."""
     from rollbot_oc.courses import random_course
 
     course = random_course(seed=0, index=73)
-    problem = course.problem.with_duration(12.0)
+    first = Waypoints(tuple(course.problem.mission.points[:1]))  # the first stop alone: no leg planned ahead
+    problem = replace(course.problem, mission=first, duration=8.0)
     firsts = []
     for omega in (TrackingWeights.for_waypoints().arrival_omega, 0.0):
         settings = NMPCSettings(waypoint_weights=replace(TrackingWeights.for_waypoints(), arrival_omega=omega))
         run = run_problem(problem, "nmpc", params=course.believed, seed=course.noise_seed, show_progress=False,
                           settings=settings)
         firsts.append(run.metrics["stop_times"][:1])
-    assert firsts[0] and firsts[0][0] <= 12.0 and (firsts[1] == [] or firsts[0][0] < firsts[1][0]), firsts
+    assert firsts[0] and firsts[0][0] <= 7.5 and (firsts[1] == [] or firsts[0][0] < firsts[1][0]), firsts
 
 
 def test_the_filtered_attitude_ignores_the_quaternion_sign_and_restarts_after_a_gap():
@@ -388,7 +393,7 @@ def test_recovers_from_a_spin_and_a_push():
 
 def test_a_run_of_failed_solves_on_a_leg_brakes_and_replans_from_rest(monkeypatch):
     """Ten solves in a row fail mid-leg: the motor is ramped to a stop, the robot is brought to rest and
-    gets a new leg from there; both stops are still reached at rest."""
+    gets a new leg from there; the stop is still reached at rest."""
     calls = {"n": 0, "z": None}
     solve = RTISolver.solve
 
@@ -400,7 +405,7 @@ def test_a_run_of_failed_solves_on_a_leg_brakes_and_replans_from_rest(monkeypatc
 
     monkeypatch.setattr(RTISolver, "solve", flaky)
     base = load_problem(PROBLEMS / "n_shape.toml")
-    problem = replace(base, mission=Waypoints(tuple(base.mission.points[:2])), duration=60.0)
+    problem = replace(base, mission=Waypoints(tuple(base.mission.points[:1])), duration=30.0)
     m = run_problem(problem, "nmpc").metrics
     assert m["fallback_brake"] >= 1 and m["fallback_pid"] == 0 and m["brakes"] >= 1
     assert m["completed"] and max(m["stop_errors"]) <= 0.07

@@ -313,7 +313,9 @@ class Transcription:
             if compiled:
                 from rollbot_oc.codegen import compiled as compile_function
 
-                fun = compile_function(fun, jacobian=True)
+                # without optimisation: a stage and its Jacobian are 2 MB of C that gcc -O1 takes a minute to
+                # compile and -O0 seconds, and an NLP solver's time goes to its own linear algebra, not to them
+                fun = compile_function(fun, flags=("-O0",), jacobian=True)
             Y = ca.reshape(w[np.concatenate([st.columns for st in group]).tolist()], group[0].columns.size,
                            len(group))
             C, Lc, R = fun.map(len(group))(Y, v, p, q, SQ[:, [st.index for st in group]],

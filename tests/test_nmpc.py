@@ -201,7 +201,7 @@ def test_a_failed_warm_start_is_solved_again_from_the_reference(monkeypatch):
 def test_ipopt_route_converges_on_the_same_problem():
     """IPOPT (exact Hessian) is too slow for real time here, so it is studied without the real-time limit
     (on 30 intervals of 0.1 s: the route, not the horizon, is what this checks)."""
-    problem = load_problem(PROBLEMS / "circle_R065.toml").with_duration(3.0)
+    problem = load_problem(PROBLEMS / "circle_R065.toml").with_duration(1.5)  # 15 periods of IPOPT to convergence
     settings = NMPCSettings(solver="ipopt", max_solve_time=60.0, N=30, h=0.1, substeps=2)
     m = run_problem(problem, "nmpc", settings=settings).metrics
     assert m["failed_solves"] == 0 and m["fallback_pid"] == 0
@@ -288,7 +288,10 @@ def test_learning_in_closed_loop_is_not_biased_by_the_attitude_noise():
     from rollbot_oc.courses import random_course
 
     course = random_course(seed=0, index=30)
-    run = run_problem(course.problem.with_duration(20.0), "nmpc", params=course.believed, seed=course.noise_seed)
+    # its first two stops (the first reached at 14.4 s): the same run for 20 s, without planning legs it never starts
+    two = Waypoints(tuple(course.problem.mission.points[:2]))
+    problem = replace(course.problem, mission=two, duration=20.0)
+    run = run_problem(problem, "nmpc", params=course.believed, seed=course.noise_seed)
     learned = run.metrics["model_learned"]
     for name in ("M", "m", "k0"):
         truth = getattr(course.problem.params, name) / getattr(course.believed, name)

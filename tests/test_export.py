@@ -11,7 +11,6 @@ import pytest
 
 from rollbot_oc.cli import EXIT_USAGE, main
 from rollbot_oc.codegen import compiler
-from rollbot_oc.control.missions import Waypoints
 from rollbot_oc.control.nmpc.tracking import tracking_problem
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.problems import run_problem
@@ -70,7 +69,7 @@ def test_export_builds_replays_a_whole_run_and_closes_the_loop_through_c(tmp_pat
     from rollbot_oc.export.project import build, export_c
 
     n_shape = load_bundled("n_shape")
-    problem = replace(n_shape, mission=Waypoints(tuple(n_shape.mission.points[:2])), duration=40.0)
+    problem = replace(n_shape, mission=n_shape.mission.first(2), duration=40.0)
     result = export_c(tmp_path / "rollbot_c", problem)
     folder = result.folder
     for name in ("rollbot_period.c", "rollbot_period.h", "rollbot_config.h", "rollbot_data.c", "rollbot_controller.h",
@@ -124,7 +123,7 @@ def test_the_step_weighs_the_arrival_only_past_the_legs_end():
 
     assert s.waypoint_weights.arrival_speed > 0 and s.waypoint_weights.arrival_omega > 0
     n_shape = load_bundled("n_shape")
-    problem = replace(n_shape, mission=Waypoints(tuple(n_shape.mission.points[:1])), duration=3.0)  # one leg planned
+    problem = replace(n_shape, mission=n_shape.mission.first(1), duration=3.0)  # one leg planned
     still = replace(s, waypoint_weights=replace(s.waypoint_weights, arrival_speed=0.0, arrival_omega=0.0))
     commands = []
     for settings in (still, s):

@@ -78,11 +78,11 @@ def test_arrival_weights_weigh_only_the_nodes_past_the_leg():
         [node * NZ + speed for node in range(7, N + 1)]
 
 
-@pytest.mark.parametrize("name", ["circle_R020"])  # the tightest (the README's table measures all four)
-def test_circles_half_the_pid_deviation(name):
-    """Each controller measured over 45 s once settled: the PID from the paper's 120 s, the NMPC, which plans
-    its entry onto the circle, from 30 s (both from reaching the circle if that is later)."""
-    problem = load_problem(PROBLEMS / f"{name}.toml")
+def test_circle_half_the_pid_deviation():
+    """The tightest circle (the README's table measures all four). Each controller measured over 45 s once
+    settled: the PID from the paper's 120 s, the NMPC, which plans its entry onto the circle, from 30 s (both
+    from reaching the circle if that is later)."""
+    problem = load_problem(PROBLEMS / "circle_R020.toml")
     pid = run_problem(problem.with_duration(165.0), "pid").metrics
     nmpc_problem = replace(problem, mission=replace(problem.mission, settle_time=30.0), duration=75.0)
     nmpc = run_problem(nmpc_problem, "nmpc").metrics
@@ -109,7 +109,7 @@ def test_model_error_of_ten_percent(scale):
     base = load_problem(PROBLEMS / "n_shape.toml")
     p = base.params
     plant = p.replace(M_s=scale * p.M_s, m=scale * p.m, m_b=scale * p.m_b, k0=scale * p.k0)
-    problem = replace(base, params=plant, mission=Waypoints(tuple(base.mission.points[:2])))
+    problem = replace(base, params=plant, mission=base.mission.first(2))
     m = run_problem(problem, "nmpc", params=RollbotParams()).metrics
     assert m["completed"] and max(m["stop_errors"]) <= 0.07
     check_plant_limits(m)
@@ -289,7 +289,7 @@ def test_learning_in_closed_loop_is_not_biased_by_the_attitude_noise():
 
     course = random_course(seed=0, index=30)
     # its first two stops (the first reached at 14.4 s): the same run for 20 s, without planning legs it never starts
-    two = Waypoints(tuple(course.problem.mission.points[:2]))
+    two = course.problem.mission.first(2)
     problem = replace(course.problem, mission=two, duration=20.0)
     run = run_problem(problem, "nmpc", params=course.believed, seed=course.noise_seed)
     learned = run.metrics["model_learned"]
@@ -301,14 +301,14 @@ def test_learning_in_closed_loop_is_not_biased_by_the_attitude_noise():
 def test_the_shell_arrives_still_on_a_robot_that_sways():
     """Random course 73 (R = 0.147 m, the masses and damping up to 10 % off the model): the first leg ends near
     4.5 s. Weighing the shell's angular velocity past the leg's end (``arrival_omega``), the robot is at rest at
-    its first stop sooner than without, and within 7.5 s (the rest test then holds by the run's 8 s).  At commit 0b6ceff the approach without the weight
-    ended in a sideways sway of the shell (39 mm/s at 6 s, a mode the motor cannot damp at rest) and the rest
+    its first stop sooner than without, and within 7.5 s (the rest test then holds by the run's 8 s).  At commit
+    0b6ceff the approach without the weight ended in a sideways sway of the shell (39 mm/s at 6 s, a mode the motor cannot damp at rest) and the rest
     test passed at 18.3 s, against 8.85 s with it; since the first leg's refinement starts from the state the
     tracking NMPC predicts (b0f0160) the approach sways less: 6.01 s without the weight, 5.3 s with it."""
     from rollbot_oc.courses import random_course
 
     course = random_course(seed=0, index=73)
-    first = Waypoints(tuple(course.problem.mission.points[:1]))  # the first stop alone: no leg planned ahead
+    first = course.problem.mission.first(1)  # the first stop alone: no leg planned ahead
     problem = replace(course.problem, mission=first, duration=8.0)
     firsts = []
     for omega in (TrackingWeights.for_waypoints().arrival_omega, 0.0):
@@ -387,7 +387,7 @@ def test_recovers_from_a_spin_and_a_push():
     from rollbot_oc.simulate import Kick
 
     base = load_problem(PROBLEMS / "n_shape.toml")
-    problem = replace(base, mission=Waypoints(tuple(base.mission.points[:2])), duration=60.0)
+    problem = replace(base, mission=base.mission.first(2), duration=60.0)
     kicks = [Kick(3.0, omega=(0.0, 0.0, 1.0)), Kick(10.0, position=(0.5, 0.0))]
     m = run_problem(problem, "nmpc", kicks=kicks).metrics
     assert m["completed"] and max(m["stop_errors"]) <= 0.07 and m["stop_replans"] >= 1
@@ -408,7 +408,7 @@ def test_a_run_of_failed_solves_on_a_leg_brakes_and_replans_from_rest(monkeypatc
 
     monkeypatch.setattr(RTISolver, "solve", flaky)
     base = load_problem(PROBLEMS / "n_shape.toml")
-    problem = replace(base, mission=Waypoints(tuple(base.mission.points[:1])), duration=30.0)
+    problem = replace(base, mission=base.mission.first(1), duration=30.0)
     m = run_problem(problem, "nmpc").metrics
     assert m["fallback_brake"] >= 1 and m["fallback_pid"] == 0 and m["brakes"] >= 1
     assert m["completed"] and max(m["stop_errors"]) <= 0.07
@@ -431,7 +431,7 @@ def test_a_leg_that_cannot_be_planned_goes_by_a_stepping_stone(monkeypatch):
 
     monkeypatch.setattr(RestToRest, "fastest", short_legs_only)
     base = load_problem(PROBLEMS / "n_shape.toml")
-    problem = replace(base, mission=Waypoints(tuple(base.mission.points[:2])), duration=60.0)
+    problem = replace(base, mission=base.mission.first(2), duration=60.0)
     m = run_problem(problem, "nmpc").metrics
     stone = NMPCSettings().stone_distance
     assert any(d > 0.7 for d in tried) and any(abs(d - stone) < 1e-9 for d in tried)
@@ -455,7 +455,7 @@ def test_a_failed_refinement_of_the_first_guess_is_planned_again_further_along(m
 
     monkeypatch.setattr(RestToRest, "solve", first_refinement_fails)
     base = load_problem(PROBLEMS / "n_shape.toml")
-    problem = replace(base, mission=Waypoints(tuple(base.mission.points[:1])), duration=30.0)
+    problem = replace(base, mission=base.mission.first(1), duration=30.0)
     m = run_problem(problem, "nmpc").metrics
     assert len(refinements) >= 2 and refinements[1] != refinements[0]  # planned again, from elsewhere
     assert m["plan_failures"] >= 1 and m["plans"][0]["status"] == "Solve_Succeeded"
@@ -521,7 +521,7 @@ def test_a_robot_at_rest_away_from_its_stop_is_replanned_after_the_hold_time(mon
     monkeypatch.setattr(loop, "quasi_stable_guess", short_guess)
     monkeypatch.setattr(RestToRest, "solve", refinements_fail)
     monkeypatch.setattr(NMPC, "_brake", record)
-    problem = replace(base, mission=Waypoints(tuple(base.mission.points[:1])), duration=30.0)
+    problem = replace(base, mission=base.mission.first(1), duration=30.0)
     m = run_problem(problem, "nmpc").metrics
     hold = NMPCSettings().hold_time
     after, away, provisional = brakes[0]

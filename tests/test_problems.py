@@ -81,3 +81,9 @@ def test_missions_validate():
     with pytest.raises(ValueError, match="at least one"):
         Waypoints(())
     assert np.allclose(Circle([1, 0], 0.5).deviation(np.array([[1.0, 2.0], [0.6, 0.0]])), [0.1, 0.5])
+    course = Waypoints(([0, 0], [1, 0], [1, 1]), stop_tolerance=0.03)
+    first = course.first(2)
+    assert [p.tolist() for p in first.stops] == [[0, 0], [1, 0]] and first.stop_tolerance == 0.03
+    for count in (0, 4, 1.0):
+        with pytest.raises(ValueError, match="give 1 to 3"):
+            course.first(count)

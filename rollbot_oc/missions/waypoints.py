@@ -11,7 +11,7 @@ Table::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -120,6 +120,12 @@ class Waypoints(Mission):
         head = (f"completed in {number(metrics['completion_time'], '.1f', 's')}" if metrics["completed"] else
                 f"NOT completed: {len(errors)} of {len(self.stops)} stops in {number(metrics['duration'], '.1f', 's')}")
         return [head, worst]
+
+    def first(self, count: int) -> "Waypoints":
+        """The first ``count`` waypoints (>= 1), with the same tolerances: a shorter course."""
+        if not (isinstance(count, int) and 1 <= count <= len(self.points)):
+            raise ValueError(f"waypoints: first {count!r} of {len(self.points)} (give 1 to {len(self.points)})")
+        return replace(self, points=self.points[:count])
 
     def leg(self, index: int) -> "Waypoints":
         """The stop ``index`` alone."""

@@ -1,6 +1,7 @@
 """The optimal-control layer: one description, transcribed once, solved by its routes; checks against physics."""
 
 import math
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -16,6 +17,7 @@ from rollbot_oc.simulate import simulate
 
 from legs import leg_problem as shared_leg
 
+ROOT = Path(__file__).resolve().parents[1]
 PARAMS = RollbotParams(slope=math.radians(1.0), slope_dir=0.5)
 GOAL = np.array([0.0, 0.4])
 N = 12
@@ -140,6 +142,35 @@ def test_the_structured_linearisation_equals_the_nlps_ad(leg):
     assert np.abs(g - np.array(rg).ravel()).max() < 1e-12
     assert float(ca.norm_inf(J - rJ)) < 1e-12
     assert f == pytest.approx(float(rf), rel=1e-12)
+
+
+def test_qps_through_buffers_equal_qps_called_by_name():
+    """The SQP routes call their QP solvers through numpy buffers with the nonzeros (no DM per call): on a
+    sequence of different tracking QPs (the N-shape NMPC's, its reference moved step by step) each solution
+    equals the named call's, for HPIPM (with its arrays bound once to one buffer and refilled in place,
+    its steps drifted off by 5, 10 and 15) and qrqp, and the Jacobian product of the feasibility check equals CasADi's."""
+    from rollbot_oc.problems import load_problem, make_controller
+
+    problem = load_problem(ROOT / "problems" / "n_shape.toml")
+    solver = make_controller("nmpc", problem).solver
+    route, tr, N = solver.route, solver.route.transcription, solver.settings.N
+    lin = route.linearisation
+    z0 = to_reduced(problem.initial_state())
+    for buffered, named in zip(route._buffered, route.qps):  # HPIPM, then qrqp
+        for k in range(4):
+            Zr = np.tile(z0[:, None], (1, N + 1))
+            Zr[0:2] += np.array([[0.05], [0.03]]) * k
+            par = tr.parameter_vector(solver._parameters(z0, Zr, np.zeros(N), solver.params.vector(), None, None))
+            lbw, ubw = tr.bounds(par)
+            w = np.clip(solver._guess(z0, Zr, np.zeros(N)), lbw, ubw)
+            H, grad, g, J, _f = lin.nonzeros(w, par)
+            args = dict(g=grad, lba=tr.lbg - g, uba=tr.ubg - g, lbx=lbw - w, ubx=ubw - w)
+            fast = buffered(h=H, a=J, **args)
+            slow = named(h=ca.DM(lin.H_sparsity, H), a=ca.DM(lin.J_sparsity, J), **args)
+            assert buffered.stats()["success"] and named.stats()["success"]
+            assert np.abs(fast["x"] - np.array(slow["x"]).ravel()).max() <= 1e-12
+            d = fast["x"]
+            assert np.abs(lin.J_times(J, d) - np.array(ca.mtimes(ca.DM(lin.J_sparsity, J), d)).ravel()).max() < 1e-12
 
 
 def test_stage_parameters_take_a_column_per_node_and_refuse_a_transposed_array():

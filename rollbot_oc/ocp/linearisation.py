@@ -110,6 +110,7 @@ class StructuredLinearisation:
         order = np.lexsort((J_rows, J_cols))  # column-major, as CasADi stores nonzeros
         self.J_order = order
         self.J_sparsity = ca.Sparsity.triplet(m, n, J_rows[order].tolist(), J_cols[order].tolist())
+        self._J_rows, self._J_cols = J_rows[order], J_cols[order]  # of each nonzero, in the sparsity's order
         if self.J_sparsity.nnz() != J_rows.size:
             raise RuntimeError("structured linearisation: two stages claim the same Jacobian entry")
         # Hessian: upper triangle, blocks overlap where stages share a node (summed), plus the diagonal
@@ -149,6 +150,12 @@ class StructuredLinearisation:
 
     def __call__(self, w, par):
         """``(H, grad, g, J, f)`` at ``w``: H and J as CasADi sparse DM, the rest numpy."""
+        H, grad, g, J, f = self.nonzeros(w, par)
+        return ca.DM(self.H_sparsity, H), grad, g, ca.DM(self.J_sparsity, J), f
+
+    def nonzeros(self, w, par):
+        """``(H, grad, g, J, f)`` at ``w``, all numpy: H and J as their nonzeros in the order of
+        ``H_sparsity`` and ``J_sparsity`` (what a conic solver's buffers take, no DM built)."""
         w = np.asarray(w, float)
         p, q, SQ = self.split_parameters(par)
         v = w[self._v]
@@ -161,12 +168,15 @@ class StructuredLinearisation:
             grad_vals.append(grad)
             H_vals.append(H)
             f += float(np.sum(fs))
-        J = ca.DM(self.J_sparsity, np.concatenate(J_vals)[self.J_order])
+        J = np.concatenate(J_vals)[self.J_order]
         grad = np.bincount(self.grad_cols, weights=np.concatenate(grad_vals), minlength=self.n)
         upper = np.bincount(self.H_index, weights=np.concatenate(H_vals + [self.regularisation]),
                             minlength=self.H_upper.nnz())
-        H = ca.DM(self.H_sparsity, upper[self.H_full_map])
-        return H, grad, g, J, f
+        return upper[self.H_full_map], grad, g, J, f
+
+    def J_times(self, J, d) -> np.ndarray:
+        """The product of the Jacobian with nonzeros ``J`` (as ``nonzeros`` gives them) and a vector ``d``."""
+        return np.bincount(self._J_rows, weights=J * np.asarray(d, float)[self._J_cols], minlength=self.m)
 
     def symbolic(self, w: ca.MX, par: ca.MX):
         """``(H, grad, g, J, f)`` as CasADi MX expressions of symbols ``w`` and ``par``, for code generation.

@@ -40,6 +40,7 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.errors import ConfigError
+from rollbot_oc.fastcall import FastFunction
 from rollbot_oc.ocp.problem import OCP, Constraint, FreeTime
 
 __all__ = ["Transcription", "Layout"]
@@ -373,7 +374,7 @@ class Transcription:
             lo, hi = (ca.DM(b.constraint.lower) - b.offset) / b.scale, (ca.DM(b.constraint.upper) - b.offset) / b.scale
             lows.append(ca.fmin(lo, hi))  # a negative coefficient turns the bounds round
             highs.append(ca.fmax(lo, hi))
-        return ca.Function("simple_bounds", [ocp.p, q], [ca.vertcat(*lows), ca.vertcat(*highs)])
+        return ca.Function("simple_bounds", [ocp.p, q], [ca.densify(ca.vertcat(*lows)), ca.densify(ca.vertcat(*highs))])
 
     def bounds(self, par) -> tuple[np.ndarray, np.ndarray]:
         """``(lbw, ubw)`` of the decision vector for the parameter vector ``par`` (simple bounds included)."""
@@ -382,11 +383,11 @@ class Transcription:
             return self.lbw, self.ubw
         par = np.asarray(par, float)
         if "_bounds_fun" not in self.__dict__:
-            self._bounds_fun = self._bound_function()
+            self._bounds_fun = FastFunction(self._bound_function())
         L = self.layout
         q = np.concatenate([par[L.parameters[name]] for name in self.ocp.parameters]) \
             if self.ocp.parameters else np.zeros(0)
-        lo, hi = (np.array(v).ravel() for v in self._bounds_fun(par[L.parameters["p"]], q))
+        lo, hi = self._bounds_fun(par[L.parameters["p"]], q)
         lbw, ubw = self.lbw.copy(), self.ubw.copy()
         np.maximum.at(lbw, columns, lo[which])  # several bounds of one entry: the tightest holds
         np.minimum.at(ubw, columns, hi[which])

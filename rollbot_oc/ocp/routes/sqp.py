@@ -57,6 +57,36 @@ def _qp_options(name: str, extra: dict | None) -> dict:
     return opts
 
 
+class _BufferedQP:
+    """A CasADi conic solver called through numpy buffers (``Function.buffer``, as ``FastFunction``): the
+    Hessian and the constraint Jacobian go in as their nonzeros (``StructuredLinearisation.nonzeros``), so
+    no DM is built per call; inputs not given are zero, as in a call by name.  Each call binds its arrays
+    to a fresh buffer (about 0.05 ms): with arrays bound once and refilled in place, HPIPM's steps drifted
+    further off with every QP (CasADi 3.8; ``tests/test_ocp_layer.py`` compares buffered and named calls)."""
+
+    def __init__(self, conic: ca.Function):
+        self.conic = conic
+        self._inputs = {conic.name_in(i): np.zeros(conic.nnz_in(i)) for i in range(conic.n_in())}
+        self._outputs = {conic.name_out(i): np.zeros(conic.nnz_out(i)) for i in range(conic.n_out())}
+        self._buffer = None
+
+    def __call__(self, **args) -> dict:
+        buffer, evaluate = self.conic.buffer()
+        for i, (name, array) in enumerate(self._inputs.items()):
+            value = args.get(name)
+            array[:] = 0.0 if value is None else value
+            buffer.set_arg(i, memoryview(array))
+        for i, array in enumerate(self._outputs.values()):
+            buffer.set_res(i, memoryview(array))
+        evaluate()
+        self._buffer = buffer
+        return {name: array.copy() for name, array in self._outputs.items()}
+
+    def stats(self) -> dict:
+        """The statistics of the last call."""
+        return self._buffer.stats() if self._buffer is not None else {}
+
+
 class SQPRoute:
     """Gauss-Newton SQP to convergence (see module doc).
 
@@ -106,7 +136,8 @@ class SQPRoute:
         pattern = {"h": self.linearisation.H_sparsity, "a": self.linearisation.J_sparsity}
         self.qps = [ca.conic(f"ocp_qp_{name}", name, pattern, _qp_options(name, qp_options if i == 0 else None))
                     for i, name in enumerate(names)]
-        self.qp = self.qps[0]
+        self.qp = self.qps[0]  # symbolic calls (``to_function``); numeric ones go through buffers
+        self._buffered = [_BufferedQP(qp) for qp in self.qps]
 
     # -- one QP ---------------------------------------------------------------------------------
     def _qp_step(self, w, lam_w, lam_g, par, relax, bounds):
@@ -114,8 +145,8 @@ class SQPRoute:
         entries of w)`` whose constraints and bounds are dropped if the QP fails with them; ``bounds``: ``(lbw,
         ubw)`` for ``par`` (``Transcription.bounds``)."""
         tr = self.transcription
-        H, grad, g, J, f = self.linearisation(w, par)
-        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(grad)) and np.all(np.isfinite(np.array(J.nonzeros())))):
+        H, grad, g, J, f = self.linearisation.nonzeros(w, par)
+        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(grad)) and np.all(np.isfinite(J))):
             return None, lam_w, lam_g, False, "non-finite linearisation", float(f), g, None
         lbw, ubw = bounds
         args = dict(h=H, g=grad, a=J, lba=tr.lbg - g, uba=tr.ubg - g, lbx=lbw - w, ubx=ubw - w)
@@ -136,7 +167,7 @@ class SQPRoute:
         """``(solution, ok, status)`` of one QP: by each QP solver in turn, warm-started from ``lam_w, lam_g``
         if given and once more cold if that fails; the first solver's status if none solves it."""
         first = None
-        for i, qp in enumerate(self.qps):
+        for i, qp in enumerate(self._buffered):
             # the multipliers come from the first solver's previous solution: another solver starts cold (an
             # interior point's small multipliers would read as an active set to an active-set solver)
             sol, ok, status = self._solve_qp_by(qp, args, lam_w if i == 0 else None, lam_g if i == 0 else None)
@@ -167,10 +198,9 @@ class SQPRoute:
                 break
         return sol, ok, status
 
-    @staticmethod
-    def _violation_of(args, d) -> float:
+    def _violation_of(self, args, d) -> float:
         """Largest violation of a QP's constraints and bounds by its step ``d``."""
-        rows = np.array(ca.mtimes(args["a"], ca.DM(d))).ravel()
+        rows = self.linearisation.J_times(args["a"], d)
         return float(max(np.max(args["lba"] - rows, initial=0.0), np.max(rows - args["uba"], initial=0.0),
                          np.max(args["lbx"] - d, initial=0.0), np.max(d - args["ubx"], initial=0.0)))
 
@@ -180,24 +210,26 @@ class SQPRoute:
 
     # -- iterations -----------------------------------------------------------------------------
     def iterate(self, w, lam_w, lam_g, par, max_iter: int, relax=None, bounds=None):
-        """Up to ``max_iter`` SQP iterations from ``w``; returns ``(w, lam_w, lam_g, status, ok, iterations)``."""
+        """Up to ``max_iter`` SQP iterations from ``w``; returns ``(w, lam_w, lam_g, status, ok, iterations,
+        cost)``: ``cost`` at the returned ``w`` where it was evaluated on the way (a converged or failed
+        step), else at the point the last step was linearised from (real-time iterations)."""
         bounds = bounds if bounds is not None else self.transcription.bounds(par)
-        status, ok, it = "max iterations", False, 0
+        status, ok, it, f = "max iterations", False, 0, None
         for it in range(1, max_iter + 1):
             d, lw, lg, qp_ok, qp_status, f, g, grad = self._qp_step(w, lam_w, lam_g, par, relax, bounds)
             if not qp_ok:
-                return w, lam_w, lam_g, f"QP failed: {qp_status}", False, it
+                return w, lam_w, lam_g, f"QP failed: {qp_status}", False, it, f
             alpha = self._step_length(w, d, grad, lg, f, g, par) if self.line_search else 1.0
             w = np.clip(w + alpha * d, *bounds)  # a QP may overstep a bound a little
             lam_w = lw if lam_w is None else (1 - alpha) * lam_w + alpha * lw
             lam_g = lg if lam_g is None else (1 - alpha) * lam_g + alpha * lg
             if self.single_step and it == max_iter:
-                return w, lam_w, lam_g, qp_status, True, it  # real-time iterations: the last QP's own status
+                return w, lam_w, lam_g, qp_status, True, it, f  # real time: the last QP's own status
             if np.abs(alpha * d).max(initial=0.0) < self.tol:
-                _f, g_new = self.merit(w, par)
+                f_new, g_new = self.merit(w, par)
                 if self._violation(g_new) < self.tol * max(1, g.size):
-                    return w, lam_w, lam_g, "converged", True, it
-        return w, lam_w, lam_g, status, ok, it
+                    return w, lam_w, lam_g, "converged", True, it, f_new
+        return w, lam_w, lam_g, status, ok, it, None
 
     def _step_length(self, w, d, grad, lam_g, f, g, par) -> float:
         """Backtracking (Armijo, halving) on the L1 merit ``f + nu * violation``."""
@@ -256,6 +288,7 @@ class SQPRoute:
         **parameters
             The problem's parameters by name (``p``: the model parameters).
         """
+        start = time.perf_counter()  # the whole step: the parameters, bounds and iterations
         tr = self.transcription
         par = tr.parameter_vector(parameters)
         if warm is not None:
@@ -268,10 +301,11 @@ class SQPRoute:
         bounds = tr.bounds(par)
         w = np.clip(w, *bounds)
         rows = self._relaxed_rows(tuple(relax))
-        start = time.perf_counter()
-        w, lam_w, lam_g, status, ok, it = self.iterate(w, lam_w, lam_g, par, max_iter or self.max_iter, rows, bounds)
+        w, lam_w, lam_g, status, ok, it, f = self.iterate(w, lam_w, lam_g, par, max_iter or self.max_iter, rows,
+                                                          bounds)
         elapsed = time.perf_counter() - start
-        f, _g = self.merit(w, par)
+        if f is None:
+            f, _g = self.merit(w, par)
         lam_w = np.zeros(w.size) if lam_w is None else lam_w
         lam_g = np.zeros(tr.lbg.size) if lam_g is None else lam_g
         return OCPSolution(self.name, status, ok, it, elapsed, float(f), w, lam_w, lam_g, par, tr)
@@ -345,7 +379,9 @@ class RTIRoute(SQPRoute):
     """The real-time iteration: one full Gauss-Newton SQP step per call, from a warm start.
 
     ``solve``/``attempt`` take ``max_iter`` (default 1) steps; a step whose QP
-    fails is reported with the QP's status.
+    fails is reported with the QP's status.  The solution's ``cost`` is the
+    objective where the last step was linearised (a real-time iteration
+    evaluates the problem once), and its ``solve_time`` the whole call.
     """
 
     name = "rti"

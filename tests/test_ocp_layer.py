@@ -146,9 +146,11 @@ def test_the_structured_linearisation_equals_the_nlps_ad(leg):
 
 def test_qps_through_buffers_equal_qps_called_by_name():
     """The SQP routes call their QP solvers through numpy buffers with the nonzeros (no DM per call): on a
-    sequence of different tracking QPs (the N-shape NMPC's, its reference moved step by step) each solution
-    equals the named call's, for HPIPM (with its arrays bound once to one buffer and refilled in place,
-    its steps drifted off by 5, 10 and 15) and qrqp, and the Jacobian product of the feasibility check equals CasADi's."""
+    sequence of different tracking QPs (the N-shape NMPC's, its reference moved step by step; cold, then
+    warm-started from the previous multipliers as every real-time step is) each solution and its multipliers
+    equal the named call's, for HPIPM and qrqp (HPIPM with its arrays bound once to one buffer and refilled
+    in place: the step's largest entry off by 5, 10 and 15 on the second to fourth QP), and the Jacobian
+    product of the feasibility check equals CasADi's.  Unknown inputs are refused by name."""
     from rollbot_oc.problems import load_problem, make_controller
 
     problem = load_problem(ROOT / "problems" / "n_shape.toml")
@@ -157,6 +159,7 @@ def test_qps_through_buffers_equal_qps_called_by_name():
     lin = route.linearisation
     z0 = to_reduced(problem.initial_state())
     for buffered, named in zip(route._buffered, route.qps):  # HPIPM, then qrqp
+        warm = {}
         for k in range(4):
             Zr = np.tile(z0[:, None], (1, N + 1))
             Zr[0:2] += np.array([[0.05], [0.03]]) * k
@@ -164,13 +167,17 @@ def test_qps_through_buffers_equal_qps_called_by_name():
             lbw, ubw = tr.bounds(par)
             w = np.clip(solver._guess(z0, Zr, np.zeros(N)), lbw, ubw)
             H, grad, g, J, _f = lin.nonzeros(w, par)
-            args = dict(g=grad, lba=tr.lbg - g, uba=tr.ubg - g, lbx=lbw - w, ubx=ubw - w)
+            args = dict(g=grad, lba=tr.lbg - g, uba=tr.ubg - g, lbx=lbw - w, ubx=ubw - w, **warm)
             fast = buffered(h=H, a=J, **args)
             slow = named(h=ca.DM(lin.H_sparsity, H), a=ca.DM(lin.J_sparsity, J), **args)
             assert buffered.stats()["success"] and named.stats()["success"]
-            assert np.abs(fast["x"] - np.array(slow["x"]).ravel()).max() <= 1e-12
+            for key in ("x", "lam_x", "lam_a"):
+                assert np.abs(fast[key] - np.array(slow[key]).ravel()).max() <= 1e-12, key
             d = fast["x"]
             assert np.abs(lin.J_times(J, d) - np.array(ca.mtimes(ca.DM(lin.J_sparsity, J), d)).ravel()).max() < 1e-12
+            warm = dict(lam_x0=fast["lam_x"], lam_a0=fast["lam_a"])
+        with pytest.raises(ValueError, match="lam_g0"):
+            buffered(h=H, a=J, lam_g0=np.zeros(3))
 
 
 def test_stage_parameters_take_a_column_per_node_and_refuse_a_transposed_array():

@@ -26,9 +26,10 @@ class OCPSolution:
         Converged (``status`` says how).
     iterations : int
     solve_time : float
-        Wall-clock time of the solve, s.
+        Wall-clock time of the solve, s (the SQP and RTI routes: the whole call, parameters and bounds
+        included; IPOPT and fatrop: the solver's call).
     cost : float
-        Objective value.
+        Objective value (RTI: where its step was linearised, before the step).
     w : numpy.ndarray
         Decision vector (``Transcription.layout`` says where what is).
     lam_w, lam_g : numpy.ndarray

@@ -34,6 +34,7 @@ then depend on the parameters: ``Transcription.bounds(par)``.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import casadi as ca
@@ -382,12 +383,14 @@ class Transcription:
         if not columns.size:
             return self.lbw, self.ubw
         par = np.asarray(par, float)
-        if "_bounds_fun" not in self.__dict__:
-            self._bounds_fun = FastFunction(self._bound_function())
+        funs = self.__dict__.setdefault("_bounds_funs", {})  # buffers per thread: a route may be shared
+        thread = threading.get_ident()
+        if thread not in funs:
+            funs[thread] = FastFunction(self._bound_function())
         L = self.layout
         q = np.concatenate([par[L.parameters[name]] for name in self.ocp.parameters]) \
             if self.ocp.parameters else np.zeros(0)
-        lo, hi = self._bounds_fun(par[L.parameters["p"]], q)
+        lo, hi = funs[thread](par[L.parameters["p"]], q)
         lbw, ubw = self.lbw.copy(), self.ubw.copy()
         np.maximum.at(lbw, columns, lo[which])  # several bounds of one entry: the tightest holds
         np.minimum.at(ubw, columns, hi[which])

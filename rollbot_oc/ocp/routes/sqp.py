@@ -23,6 +23,7 @@ start, as real-time NMPC does.
 
 from __future__ import annotations
 
+import threading
 import time
 
 import casadi as ca
@@ -60,31 +61,41 @@ def _qp_options(name: str, extra: dict | None) -> dict:
 class _BufferedQP:
     """A CasADi conic solver called through numpy buffers (``Function.buffer``, as ``FastFunction``): the
     Hessian and the constraint Jacobian go in as their nonzeros (``StructuredLinearisation.nonzeros``), so
-    no DM is built per call; inputs not given are zero, as in a call by name.  Each call binds its arrays
-    to a fresh buffer (about 0.05 ms): with arrays bound once and refilled in place, HPIPM's steps drifted
-    further off with every QP (CasADi 3.8; ``tests/test_ocp_layer.py`` compares buffered and named calls)."""
+    no DM is built per call; an input not given takes the solver's default, as in a call by name.  Each call
+    binds fresh arrays to a fresh buffer (about 0.05 ms; no state shared between calls or threads): with
+    arrays bound once and refilled in place, HPIPM's steps drifted further off with every QP (CasADi 3.8;
+    ``tests/test_ocp_layer.py`` compares buffered and named calls)."""
 
     def __init__(self, conic: ca.Function):
         self.conic = conic
-        self._inputs = {conic.name_in(i): np.zeros(conic.nnz_in(i)) for i in range(conic.n_in())}
-        self._outputs = {conic.name_out(i): np.zeros(conic.nnz_out(i)) for i in range(conic.n_out())}
-        self._buffer = None
+        self._inputs = [(conic.name_in(i), conic.nnz_in(i), conic.default_in(i)) for i in range(conic.n_in())]
+        self._outputs = [(conic.name_out(i), conic.nnz_out(i)) for i in range(conic.n_out())]
+        self._last = threading.local()
 
     def __call__(self, **args) -> dict:
+        unknown = set(args) - {name for name, _size, _default in self._inputs}
+        if unknown:
+            raise ValueError(f"QP input(s) {', '.join(sorted(unknown))} unknown to {self.conic.name()}")
         buffer, evaluate = self.conic.buffer()
-        for i, (name, array) in enumerate(self._inputs.items()):
+        arrays = []
+        for i, (name, size, default) in enumerate(self._inputs):
             value = args.get(name)
-            array[:] = 0.0 if value is None else value
+            array = np.full(size, default) if value is None else np.array(value, float).ravel()
+            if array.size != size:  # a failed QP (as a named call's error), not a crash
+                raise RuntimeError(f"QP input {name} has {array.size} values, {self.conic.name()} takes {size}")
+            arrays.append(array)
             buffer.set_arg(i, memoryview(array))
-        for i, array in enumerate(self._outputs.values()):
+        out = {name: np.zeros(size) for name, size in self._outputs}
+        for i, array in enumerate(out.values()):
             buffer.set_res(i, memoryview(array))
         evaluate()
-        self._buffer = buffer
-        return {name: array.copy() for name, array in self._outputs.items()}
+        self._last.buffer = buffer
+        return out
 
     def stats(self) -> dict:
-        """The statistics of the last call."""
-        return self._buffer.stats() if self._buffer is not None else {}
+        """The statistics of this thread's last call."""
+        buffer = getattr(self._last, "buffer", None)
+        return buffer.stats() if buffer is not None else {}
 
 
 class SQPRoute:
@@ -212,7 +223,8 @@ class SQPRoute:
     def iterate(self, w, lam_w, lam_g, par, max_iter: int, relax=None, bounds=None):
         """Up to ``max_iter`` SQP iterations from ``w``; returns ``(w, lam_w, lam_g, status, ok, iterations,
         cost)``: ``cost`` at the returned ``w`` where it was evaluated on the way (a converged or failed
-        step), else at the point the last step was linearised from (real-time iterations)."""
+        step), at the point the last step was linearised from (real-time iterations), or None (the
+        iteration limit reached: ``attempt`` evaluates it then)."""
         bounds = bounds if bounds is not None else self.transcription.bounds(par)
         status, ok, it, f = "max iterations", False, 0, None
         for it in range(1, max_iter + 1):

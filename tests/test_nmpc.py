@@ -302,8 +302,8 @@ def test_the_shell_arrives_still_on_a_robot_that_sways():
     """Random course 73 (R = 0.147 m, the masses and damping up to 10 % off the model): the first leg ends near
     4.5 s. Weighing the shell's angular velocity past the leg's end (``arrival_omega``), the robot is at rest at
     its first stop sooner than without, and within 7.5 s (the rest test then holds by the run's 8 s).  At commit
-    0b6ceff the approach without the weight ended in a sideways sway of the shell (39 mm/s at 6 s, a mode the motor cannot damp at rest) and the rest
-    test passed at 18.3 s, against 8.85 s with it; since the first leg's refinement starts from the state the
+    0b6ceff the approach without the weight ended in a sideways sway of the shell (39 mm/s at 6 s, a mode the
+    motor cannot damp at rest) and the rest test passed at 18.3 s, against 8.85 s with it; since the first leg's refinement starts from the state the
     tracking NMPC predicts (b0f0160) the approach sways less: 6.01 s without the weight, 5.3 s with it."""
     from rollbot_oc.courses import random_course
 

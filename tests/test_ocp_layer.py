@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rollbot_oc.control.ocp import quasi_stable_guess
-from rollbot_oc.dynamics import RollbotModel, from_reduced, rest_state, to_reduced
+from rollbot_oc.dynamics import REDUCED, RollbotModel, from_reduced, rest_state, to_reduced
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.ocp import OCP, FreeTime, bounded
 from rollbot_oc.ocp.constraints import at_rest, driving_speed, motor_accel, motor_torque, no_jump, no_slide
@@ -162,7 +162,7 @@ def test_qps_through_buffers_equal_qps_called_by_name():
         warm = {}
         for k in range(4):
             Zr = np.tile(z0[:, None], (1, N + 1))
-            Zr[0:2] += np.array([[0.05], [0.03]]) * k
+            Zr[REDUCED.position] += np.array([[0.05], [0.03]]) * k
             par = tr.parameter_vector(solver._parameters(z0, Zr, np.zeros(N), solver.params.vector(), None, None))
             lbw, ubw = tr.bounds(par)
             w = np.clip(solver._guess(z0, Zr, np.zeros(N)), lbw, ubw)

@@ -77,7 +77,7 @@ class _BufferedQP:
         if unknown:
             raise ValueError(f"QP input(s) {', '.join(sorted(unknown))} unknown to {self.conic.name()}")
         buffer, evaluate = self.conic.buffer()
-        arrays = []
+        arrays = []  # kept alive while the buffer points into them
         for i, (name, size, default) in enumerate(self._inputs):
             value = args.get(name)
             array = np.full(size, default) if value is None else np.array(value, float).ravel()

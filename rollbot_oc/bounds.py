@@ -8,7 +8,9 @@ The bound of a course is the sum of the minimum times of its legs, each a
 rest-to-rest plan over the full dynamics with the motor's torque, speed and
 acceleration limits and the no-jump and no-slide margins of the planner
 (``OCPSettings``), each leg starting where the previous plan ended (heading
-included), each the fastest of ``BOUND_STARTS`` starts (``RestToRest.fastest``).  It is
+included), each the fastest of ``BOUND_STARTS`` starts (``RestToRest.fastest``; if none
+converges, up to ``BOUND_RESUMES`` of them are solved again from where IPOPT stopped, as the NMPC's
+planner does, ``NMPCSettings.plan_resumes``).  It is
 a bound in the sense the issue tracker uses it: what the planner finds, a
 local optimum, not a proven global minimum (single starts land in optima up
 to twice as slow).
@@ -28,9 +30,10 @@ import numpy as np
 from rollbot_oc.errors import NumericalFailure
 from rollbot_oc.params import RollbotParams
 
-__all__ = ["TimeBound", "minimum_time_bound", "n_shape_bound", "BOUND_STARTS"]
+__all__ = ["TimeBound", "minimum_time_bound", "n_shape_bound", "BOUND_STARTS", "BOUND_RESUMES"]
 
 BOUND_STARTS = 5  # guesses per leg; the fastest local optimum found is kept
+BOUND_RESUMES = 3  # failed starts of a leg solved again from their last iterate when none converged
 
 
 @dataclass(frozen=True)
@@ -64,7 +67,7 @@ def _plan_legs(params: RollbotParams, start_state: np.ndarray, stops) -> list[fl
 
     try:  # the stage constraints as compiled C (the same problem, solved several times faster)
         plans = plan_waypoints(start_state, [np.asarray(s, float) for s in stops], params, OCPSettings(compiled=True),
-                               starts=BOUND_STARTS)
+                               starts=BOUND_STARTS, resumes=BOUND_RESUMES)
     except SolveFailed as exc:
         raise NumericalFailure(str(exc), exc.status) from None
     return [float(plan.T) for plan in plans]

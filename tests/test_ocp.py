@@ -111,6 +111,11 @@ def test_failed_starts_resumed_from_where_they_stopped_reach_the_same_plan():
     assert resumed.success and resumed.T == pytest.approx(uncapped.T, abs=1e-4)
     assert np.abs(resumed.z[0:2, -1] - goal).max() <= settings.goal_tolerance + 1e-6
     assert 2 * 30 < resumed.iterations <= 4 * 30  # both failed starts, and the resumed ones
+    # the chain of legs (the minimum-time bound's) resumes its legs the same way
+    chained, = plan_waypoints(start, [goal], ocp=capped, starts=2, resumes=2)
+    assert chained.T == pytest.approx(resumed.T, abs=1e-9)
+    with pytest.raises(SolveFailed, match="Maximum_Iterations_Exceeded"):
+        plan_waypoints(start, [goal], ocp=capped, starts=2)
     with pytest.raises(ValueError, match="resumes"):
         capped.fastest(start, goal, starts=2, resumes=-1)
 

@@ -563,9 +563,10 @@ def orbit_guess(z0, centre, ocp: OrbitEntry, hold: float = 1.0) -> tuple[Plan, f
 
 
 def plan_waypoints(start, stops, params: RollbotParams | None = None, settings: OCPSettings | None = None,
-                   ocp: RestToRest | None = None, starts: int = 3) -> list[Plan]:
+                   ocp: RestToRest | None = None, starts: int = 3, resumes: int = 0) -> list[Plan]:
     """Minimum-time rest-to-rest legs through ``stops`` (m), each starting where the previous plan ends,
-    each the fastest from ``starts`` guesses (``RestToRest.fastest``).
+    each the fastest from ``starts`` guesses, with up to ``resumes`` failed starts solved again from where
+    they stopped if none converges (``RestToRest.fastest``).
 
     Raises
     ------
@@ -576,7 +577,7 @@ def plan_waypoints(start, stops, params: RollbotParams | None = None, settings: 
     z = _reduced(start)
     plans = []
     for stop in stops:
-        plan = ocp.fastest(z, stop, starts)
+        plan = ocp.fastest(z, stop, starts, resumes=resumes)
         plans.append(plan)
         z = plan.z[:, -1].copy()
         z[REDUCED.velocity] = 0.0  # the leg ends at rest

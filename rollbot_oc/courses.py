@@ -42,6 +42,7 @@ import numpy as np
 
 from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.params import RollbotParams
+from rollbot_oc.reproducible import norm
 
 __all__ = ["CourseRanges", "Course", "random_course", "course_duration", "DURATION_BASE", "DURATION_PER_METRE",
            "DURATION_PER_STOP"]
@@ -193,7 +194,7 @@ def _geometry(rng, ranges: CourseRanges):
     for _ in range(int(rng.integers(ranges.stops[0], ranges.stops[1] + 1))):
         for _attempt in range(10_000):
             candidate = rng.uniform(-half, half, 2)
-            if ranges.leg[0] <= np.linalg.norm(candidate - points[-1]) <= ranges.leg[1]:
+            if ranges.leg[0] <= norm(candidate - points[-1]) <= ranges.leg[1]:
                 break
         else:  # pragma: no cover - a leg range this narrow in this square is practically impossible
             raise ConfigError(f"course ranges: no leg of {list(ranges.leg)} m found in a {ranges.square} m square")
@@ -270,7 +271,7 @@ def random_course(seed: int, index: int, ranges: CourseRanges | None = None):
     else:  # pragma: no cover
         raise NumericalFailure(f"course {seed}/{index}: no analysable model of the robot in 1000 draws")
     path = [start] + stops
-    length = float(sum(np.linalg.norm(b - a) for a, b in zip(path[:-1], path[1:])))
+    length = float(sum(norm(b - a) for a, b in zip(path[:-1], path[1:])))
     duration = course_duration(length, len(stops))
     table = {
         "name": f"course_{seed}_{index}", "kind": "waypoints", "duration": duration,

@@ -49,6 +49,7 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.params import NP, TILT, ParamView, RollbotParams
+from rollbot_oc.reproducible import dot, matmul, norm
 from rollbot_oc.rotations import (
     matrix_to_quat_np, quat_derivative, quat_multiply, quat_multiply_np, quat_to_matrix, rot_y_np, rot_z_np,
 )
@@ -396,7 +397,7 @@ def rest_state(params: RollbotParams | None = None, position=(0.0, 0.0), heading
     numpy.ndarray (11,)
     """
     params = params or RollbotParams()
-    T = rot_z_np(heading) @ rot_y_np(params.phi) @ rot_z_np(-theta)
+    T = matmul(matmul(rot_z_np(heading), rot_y_np(params.phi)), rot_z_np(-theta))
     x = np.zeros(NX)
     x[POS] = position
     x[QUAT] = matrix_to_quat_np(T)
@@ -435,10 +436,10 @@ def rest_attitude(quaternion, p) -> np.ndarray:
     """
     vector = p.vector() if isinstance(p, RollbotParams) else np.asarray(p, float)
     q = np.asarray(quaternion, float)
-    rest, residual = (np.array(v).ravel() for v in _rest_balance()(q / np.linalg.norm(q), vector))
+    rest, residual = (np.array(v).ravel() for v in _rest_balance()(q / norm(q), vector))
     if not (np.all(np.isfinite(rest)) and np.max(np.abs(residual)) < 1e-9):
         raise ValueError(f"no attitude at rest on the floor of tilt {vector[TILT].round(4).tolist()} (sin of the slope)")
-    return rest if float(rest @ q) >= 0 else -rest
+    return rest if dot(rest, q) >= 0 else -rest
 
 
 def _axis_quaternion(axis: int, angle):

@@ -30,6 +30,7 @@ from rollbot_oc.dynamics import POS
 from rollbot_oc.estimation import NA, NE, ErrorStateEKF, Estimate, EstimatorSettings, error_between
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.params import RollbotParams
+from rollbot_oc.reproducible import dot, solve
 from rollbot_oc.sensors import OnboardSensors, SensingConfig
 
 __all__ = ["OnboardSensing", "EstimationRecord", "nees_bounds"]
@@ -145,7 +146,7 @@ class EstimationRecord:
         out = []
         for k in steps:
             e = error_between(truth[:, k], self.estimate[:, k])
-            out.append(float(e @ np.linalg.solve(self.covariance[k], e)))
+            out.append(dot(e, solve(self.covariance[k], e)))
         return np.array(out)
 
 

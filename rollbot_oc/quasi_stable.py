@@ -60,6 +60,7 @@ from rollbot_oc.dynamics import NU, NW, OMEGA, POS, QUAT, symbolic_model
 from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.fastcall import fast_map
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, ParamView, RollbotParams
+from rollbot_oc.reproducible import matmul
 from rollbot_oc.rotations import quat_multiply_np
 
 __all__ = [
@@ -250,9 +251,9 @@ class QuasiStableState:
         x = np.array(quasi_symbolic().state(self.unknowns, self.omega0, level(self.params).vector())).ravel()
         c, s_ = math.cos(phase), math.sin(phase)
         rot = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
-        x[POS] = rot[:2, :2] @ x[POS] + np.asarray(centre, float)
+        x[POS] = matmul(rot[:2, :2], x[POS]) + np.asarray(centre, float)
         x[QUAT] = quat_multiply_np([math.cos(phase / 2), 0.0, 0.0, math.sin(phase / 2)], x[QUAT])
-        x[OMEGA] = rot @ x[OMEGA]
+        x[OMEGA] = matmul(rot, x[OMEGA])
         return x
 
     def to_dict(self) -> dict:

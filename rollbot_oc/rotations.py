@@ -11,6 +11,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from rollbot_oc.reproducible import norm
+
 __all__ = [
     "skew", "quat_to_matrix", "quat_multiply", "quat_derivative",
     "quat_multiply_np", "rot_x_np", "rot_y_np", "rot_z_np", "matrix_to_quat_np", "quat_to_matrix_np",
@@ -106,5 +108,5 @@ def matrix_to_quat_np(T) -> np.ndarray:
         q[1 + j] = (T[j, i] + T[i, j]) / (4 * v)
         q[1 + k] = (T[k, i] + T[i, k]) / (4 * v)
     q = np.array(q)
-    q /= np.linalg.norm(q)
+    q /= norm(q)
     return q if q[0] >= 0 else -q

@@ -56,6 +56,7 @@ import numpy as np
 from rollbot_oc.dynamics import NU, NW, NX, OMEGA, POS, QUAT, THETA, gravity_vector, symbolic_model
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.params import NP, ParamView
+from rollbot_oc.reproducible import norm
 from rollbot_oc.rotations import quat_multiply_np, quat_to_matrix
 
 __all__ = ["ImuModel", "EncoderModel", "MocapModel", "SensingConfig", "MODES", "NSIG", "body_signals",
@@ -305,7 +306,7 @@ def rotate_randomly(q, sigma: float, rng: np.random.Generator) -> np.ndarray:
     q = np.array(q, float)
     if sigma > 0:
         q = quat_multiply_np(np.concatenate([[1.0], 0.5 * rng.normal(0.0, sigma, 3)]), q)
-        q /= np.linalg.norm(q)
+        q /= norm(q)
     return q
 
 

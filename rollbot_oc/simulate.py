@@ -54,6 +54,7 @@ from rollbot_oc.fastcall import FastFunction
 from rollbot_oc.onboard import EstimationRecord, OnboardSensing
 from rollbot_oc.outputs import save_npz
 from rollbot_oc.params import ParamView, RollbotParams
+from rollbot_oc.reproducible import norm
 from rollbot_oc.sensors import body_signals, rotate_randomly
 
 __all__ = [
@@ -586,11 +587,11 @@ def _check_state(x0) -> np.ndarray:
         raise ValueError(f"simulate: x0 has {x0.size} entries, expected {NX} ({', '.join(STATE_NAMES)})")
     if not np.all(np.isfinite(x0)):
         raise ValueError("simulate: x0 holds non-finite values")
-    norm = np.linalg.norm(x0[QUAT])
-    if not norm > 1e-6:
-        raise ValueError(f"simulate: x0 quaternion {x0[QUAT]} has norm {norm:g}; it must be a unit quaternion")
+    length = norm(x0[QUAT])
+    if not length > 1e-6:
+        raise ValueError(f"simulate: x0 quaternion {x0[QUAT]} has norm {length:g}; it must be a unit quaternion")
     x0 = x0.copy()
-    x0[QUAT] /= norm
+    x0[QUAT] /= length
     return x0
 
 

@@ -46,6 +46,7 @@ from rollbot_oc.errors import NumericalFailure
 from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams
 from rollbot_oc.fastcall import fast_map
 from rollbot_oc.quasi_stable import QuasiStableState, _curve, _states, level, quasi_symbolic
+from rollbot_oc.reproducible import norm
 from rollbot_oc.rotations import quat_multiply, quat_to_matrix
 
 __all__ = [
@@ -252,7 +253,7 @@ def perturbed_state(state: QuasiStableState, y) -> np.ndarray:
     if y.shape != (6,):
         raise ValueError(f"perturbed_state: y has {y.size} entries, expected 6 ({', '.join(STATE_LABELS)})")
     x = np.array(_linear_functions()[1](state.unknowns, state.omega0, level(state.params).vector(), y)).ravel()
-    x[FULL.quaternion] /= np.linalg.norm(x[FULL.quaternion])
+    x[FULL.quaternion] /= norm(x[FULL.quaternion])
     return x
 
 

@@ -47,6 +47,7 @@ from rollbot_oc.errors import NotConverged
 from rollbot_oc.dynamics import NZ, REDUCED, from_reduced, to_reduced
 from rollbot_oc.params import PARAM_INDEX, TILT, RollbotParams
 from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_state
+from rollbot_oc.reproducible import norm
 from rollbot_oc.rotations import quat_multiply
 from rollbot_oc.ocp import OCP, FreeTime, bounded
 from rollbot_oc.ocp.constraints import at_rest, robot_limits
@@ -529,7 +530,7 @@ def quasi_stable_guesses(z0, goal, params: RollbotParams, N: int, count: int, ke
             return math.copysign(max(0.0, min(a * t, abs(w), a * (total - t))), w)
 
         run = simulate(x0, total + 1.0, params=level, speed=profile, stop_on_event=False)
-        runs.append((float(np.linalg.norm(run.position[:, -1] - goal)) + 0.01 * total, run, total + 1.0))
+        runs.append((float(norm(run.position[:, -1] - goal)) + 0.01 * total, run, total + 1.0))
     runs.sort(key=lambda r: r[0])
     plans = []
     for miss, run, T in runs[:count]:

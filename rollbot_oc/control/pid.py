@@ -38,6 +38,7 @@ from rollbot_oc.control.waypoints import WaypointLayer
 from rollbot_oc.missions import centre_of_curvature
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.quasi_stable import RadiusMap
+from rollbot_oc.reproducible import dot
 from rollbot_oc.simulate import Command, ControllerBase, Observation
 
 __all__ = ["PIDGains", "QuasiStablePID"]
@@ -184,7 +185,7 @@ class QuasiStablePID(ControllerBase):
         derivative = np.zeros(2) if self.previous_error is None else (error - self.previous_error) / dt
         self.previous_error = error
         pid = g.kp * error + g.ki * self.integral + g.kd * derivative
-        radius_rate = -pid @ direction + g.kr * (target.radius - radius)
+        radius_rate = -dot(pid, direction) + g.kr * (target.radius - radius)
         low, high = self.speed_limits
         if self.omega_cmd < low:  # spin up from rest to the least speed that steers
             accel, limited = g.max_accel, True

@@ -27,6 +27,7 @@ import numpy as np
 
 from rollbot_oc.missions import PassMonitor, StopMonitor
 from rollbot_oc.quasi_stable import RadiusMap
+from rollbot_oc.reproducible import norm
 
 __all__ = ["StopPredictor", "Target", "WaypointLayer"]
 
@@ -149,10 +150,10 @@ class WaypointLayer:
 
     def _stop_centre(self, wp_point, centre_now) -> np.ndarray:
         w = float(self.radius_map.omega(self.stop_radius))
-        rho = float(np.linalg.norm(np.array([self.stop_radius, 0.0]) + self.predictor.displacement(w)))
+        rho = float(norm(np.array([self.stop_radius, 0.0]) + self.predictor.displacement(w)))
         away = centre_now - wp_point
-        norm = float(np.linalg.norm(away))
-        direction = away / norm if norm > 1e-9 else np.array([1.0, 0.0])
+        distance = norm(away)
+        direction = away / distance if distance > 1e-9 else np.array([1.0, 0.0])
         return wp_point + rho * direction
 
     def target(self, t: float, position, heading: float, centre, omega0: float, centre_speed: float,
@@ -187,8 +188,8 @@ class WaypointLayer:
         if self.phase == "track":
             if self._goal is None:
                 self._goal = self._stop_centre(wp.point, np.asarray(centre, float))
-            aligned = np.linalg.norm(np.asarray(centre) - self._goal) < self.align_tolerance
-            miss = float(np.linalg.norm(self.predictor.rest_point(position, heading, omega0) - wp.point))
+            aligned = norm(np.asarray(centre) - self._goal) < self.align_tolerance
+            miss = float(norm(self.predictor.rest_point(position, heading, omega0) - wp.point))
             closest = miss > self._last_miss  # the predicted rest point just passed its closest approach
             self._last_miss = miss
             if aligned and closest and miss < self.align_tolerance:
@@ -209,7 +210,7 @@ class WaypointLayer:
         return target
 
     def _pass_target(self, wp, position) -> Target:
-        v = float(np.linalg.norm(wp.velocity))
+        v = float(norm(wp.velocity))
         omega0 = _speed_to_omega(self.radius_map, v)
         radius = float(self.radius_map.radius(omega0))
         # revolving counter-clockwise, velocity = Omega z x (s - o): s - o points 90 deg clockwise of v

@@ -17,6 +17,7 @@ import numpy as np
 
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.missions.stops import STOP_TOLERANCE, StopRule
+from rollbot_oc.reproducible import norm
 
 __all__ = ["Mission", "register", "mission_kind", "KINDS", "centre_of_curvature", "check_point"]
 
@@ -192,4 +193,4 @@ def mission_kind(name, source: str = "<problem>") -> type:
 def path_length(start, points) -> float:
     """Length of the polyline from ``start`` through ``points``, m."""
     path = [np.asarray(start, float)] + [np.asarray(p, float) for p in points]
-    return sum(float(np.linalg.norm(b - a)) for a, b in zip(path[:-1], path[1:]))
+    return sum(float(norm(b - a)) for a, b in zip(path[:-1], path[1:]))

@@ -25,6 +25,7 @@ from rollbot_oc.missions.base import Mission, check_point, path_length, register
 from rollbot_oc.missions.schema import number, points
 from rollbot_oc.missions.stops import STOP_TOLERANCE
 from rollbot_oc.missions.waypoints import Waypoint
+from rollbot_oc.reproducible import norm
 
 __all__ = ["Gates", "gate_passes", "PassMonitor", "PASS_SPEED"]
 
@@ -130,8 +131,8 @@ class Gates(Mission):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"gate {name} = {value!r} must be > 0")
         for i, (a, b) in enumerate(zip(pts[:-1], pts[1:])):
-            if np.linalg.norm(b - a) <= 2 * self.tolerance:
-                raise ValueError(f"gates {i + 1} and {i + 2} are {np.linalg.norm(b - a):.4g} m apart: they must be "
+            if norm(b - a) <= 2 * self.tolerance:
+                raise ValueError(f"gates {i + 1} and {i + 2} are {norm(b - a):.4g} m apart: they must be "
                                  f"more than twice the tolerance ({2 * self.tolerance:g} m) apart")
 
     @classmethod
@@ -179,7 +180,7 @@ class Gates(Mission):
                 d = p - self.points[i - 1]
             else:
                 d = np.array([1.0, 0.0])
-            out.append(d / np.linalg.norm(d))
+            out.append(d / norm(d))
         return out
 
     @property

@@ -19,6 +19,7 @@ from rollbot_oc.dynamics import OMEGA
 from rollbot_oc.missions.base import Mission, check_point, path_length, register
 from rollbot_oc.missions.schema import number, points
 from rollbot_oc.missions.stops import STOP_TOLERANCE, StopRule, reached_stops
+from rollbot_oc.reproducible import norm
 
 __all__ = ["Waypoint", "Waypoints"]
 
@@ -49,7 +50,7 @@ class Waypoint:
             if self.velocity is None:
                 raise ValueError(f"waypoint {self.point.tolist()}: a pass-through needs a velocity (m/s)")
             v = check_point(self.velocity, "waypoint velocity")
-            if np.linalg.norm(v) <= 0:
+            if norm(v) <= 0:
                 raise ValueError(f"waypoint {self.point.tolist()}: velocity must be non-zero")
             object.__setattr__(self, "velocity", v)
 
@@ -156,10 +157,10 @@ def _onboard_stop_metrics(stops: list, result) -> dict:
     truth = [result.position[:, k] for k in steps]
     estimated = [record.estimate[0:2, k] for k in steps]
     return {
-        "stop_errors": [float(np.linalg.norm(s - np.asarray(stop["point"]))) for s, stop in zip(truth, stops)],
-        "estimated_stop_errors": [float(np.linalg.norm(e - np.asarray(stop["point"])))
+        "stop_errors": [float(norm(s - np.asarray(stop["point"]))) for s, stop in zip(truth, stops)],
+        "estimated_stop_errors": [float(norm(e - np.asarray(stop["point"])))
                                   for e, stop in zip(estimated, stops)],
-        "estimation_errors": [float(np.linalg.norm(s - e)) for s, e in zip(truth, estimated)],
-        "max_estimation_error": max((float(np.linalg.norm(s - e)) for s, e in zip(truth, estimated)), default=None),
+        "estimation_errors": [float(norm(s - e)) for s, e in zip(truth, estimated)],
+        "max_estimation_error": max((float(norm(s - e)) for s, e in zip(truth, estimated)), default=None),
         "stop_position_std": [float(np.sqrt(np.trace(record.position_covariance[k]))) for k in steps],
     }

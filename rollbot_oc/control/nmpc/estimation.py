@@ -13,6 +13,7 @@ from rollbot_oc.ocp import rollbot_model
 from rollbot_oc.dynamics import NZ, REDUCED
 from rollbot_oc.fastcall import FastFunction
 from rollbot_oc.params import NP, PARAM_INDEX, TILT, RollbotParams
+from rollbot_oc.reproducible import dot, matmul, norm, solve
 
 __all__ = ["TiltEstimator", "LEARNABLE", "check_filter"]
 
@@ -125,11 +126,12 @@ class TiltEstimator:
         if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(H))):
             return self.tilt  # nothing to learn from a broken prediction
         P = self._P + np.diag([self.q] * 2 + [0.0] * len(self.learn))
-        change = float(np.linalg.norm(zn[REDUCED.omega] - np.asarray(z_prev)[REDUCED.omega]))
-        S = H @ P @ H.T + np.eye(3) * (self.r + (self.model_error * change) ** 2)
-        K = np.linalg.solve(S, H @ P).T  # S is symmetric positive definite (r > 0)
-        P = (np.eye(n) - K @ H) @ P
-        x = np.concatenate([self.tilt, self.scales]) + K @ residual
+        change = float(norm(zn[REDUCED.omega] - np.asarray(z_prev)[REDUCED.omega]))
+        HP = matmul(H, P)
+        S = matmul(HP, H.T) + np.eye(3) * (self.r + (self.model_error * change) ** 2)
+        K = solve(S, HP).T  # S is symmetric positive definite (r > 0)
+        P = matmul(np.eye(n) - matmul(K, H), P)
+        x = np.concatenate([self.tilt, self.scales]) + matmul(K, residual)
         self.tilt = np.clip(x[:2], -0.5, 0.5)
         self.scales = np.clip(x[2:], *SCALE_RANGE)
         self._P = 0.5 * (P + P.T)  # (rounding would make the covariance lose its symmetry)
@@ -160,7 +162,7 @@ def _blend(predicted, measured, gain: float):
         return measured
     if not np.all(np.isfinite(measured)):
         return predicted
-    if predicted @ measured < 0:
+    if dot(predicted, measured) < 0:
         measured = -measured
     q = (1.0 - gain) * predicted + gain * measured  # a chord between the two (degrees apart): back onto the sphere
-    return q / np.linalg.norm(q)
+    return q / norm(q)

@@ -19,6 +19,7 @@ from rollbot_oc.control.ocp import (OCPSettings, OrbitEntry, Plan, RestToRest, S
 from rollbot_oc.dynamics import REDUCED, rest_attitude, to_reduced
 from rollbot_oc.missions import PassMonitor, StopMonitor
 from rollbot_oc.params import RollbotParams
+from rollbot_oc.reproducible import dot, norm
 from rollbot_oc.simulate import Command, ControllerBase, Observation
 
 __all__ = ["NMPC", "GATE_REPLANS"]
@@ -110,7 +111,7 @@ class NMPC(ControllerBase):
         entry = self._entry(s.entry_times[0])
         guess, phase = orbit_guess(to_reduced(x0), orbit.centre, entry, hold=s.tilt_settle + 4 * s.entry_handover)
         self.reference = Reference([(guess, {})], self._orbit(entry, phase))
-        self._entry_shift = float(np.linalg.norm(_revolving_centre(guess, entry.quasi.Omega) - orbit.centre))
+        self._entry_shift = float(norm(_revolving_centre(guess, entry.quasi.Omega) - orbit.centre))
         self.segment_start, self._refine_at = 0.0, s.tilt_settle
         self.plan_time = time.perf_counter() - start
         return self.reference
@@ -231,7 +232,7 @@ class NMPC(ControllerBase):
             if not left or t_now - self.segment_start >= self.reference.segments[0][0].T + s.hold_time - 1e-9:
                 self._stop_motor(t_now, z)
             return
-        at_rest = (self.params.R * float(np.linalg.norm(z[REDUCED.omega])) < s.recover_speed
+        at_rest = (self.params.R * float(norm(z[REDUCED.omega])) < s.recover_speed
                    and abs(float(z[REDUCED.theta_dot])) < s.recover_drive)
         settled = at_rest or t_now - self._braking_since >= s.brake_wait - 1e-9
         if not left or self.log["replans"] >= GATE_REPLANS:
@@ -323,7 +324,7 @@ class NMPC(ControllerBase):
         goals = [np.asarray(stop, float)]
         if guess is None:  # from rest: a stepping stone if the stop cannot be planned
             towards = goals[0] - np.asarray(z_start[REDUCED.position], float)
-            distance = float(np.linalg.norm(towards))
+            distance = float(norm(towards))
             if distance > s.stone_distance:
                 goals.append(goals[0] - towards * (1.0 - s.stone_distance / distance))
 
@@ -404,7 +405,7 @@ class NMPC(ControllerBase):
         if pending is None or pending["plan"] is None:
             return False
         start = pending["plan"].z[:, 0]
-        near = np.linalg.norm(start[REDUCED.position] - z[REDUCED.position]) <= self.settings.replan_distance
+        near = norm(start[REDUCED.position] - z[REDUCED.position]) <= self.settings.replan_distance
         return near and _turned(start[REDUCED.quaternion], z[REDUCED.quaternion]) <= self.settings.replan_angle
 
     def _take_pending(self, t_now: float) -> bool:
@@ -567,7 +568,7 @@ class NMPC(ControllerBase):
                 self._drop_plans(self.segment, t_now)  # nothing (or nothing that fits) planned ahead: from here
                 self._brake(z, t_now, recovery=False)
             return
-        at_rest = (self.params.R * float(np.linalg.norm(z[REDUCED.omega])) < s.recover_speed
+        at_rest = (self.params.R * float(norm(z[REDUCED.omega])) < s.recover_speed
                    and abs(float(z[REDUCED.theta_dot])) < s.recover_drive)
         if self._braking_since is not None:  # recovering: a new leg from rest, planned while it holds
             pending = self._pending.get(i)
@@ -594,8 +595,8 @@ class NMPC(ControllerBase):
             self.warm, self.current = None, None
             return
         anchor = self._anchor if self._anchor is not None else plan.state(local)[REDUCED.position]
-        off_course = np.linalg.norm(z[REDUCED.position] - anchor) > s.replan_distance
-        away = np.linalg.norm(z[REDUCED.position] - np.asarray(info["stop"], float)) > self._rule.tolerance
+        off_course = norm(z[REDUCED.position] - anchor) > s.replan_distance
+        away = norm(z[REDUCED.position] - np.asarray(info["stop"], float)) > self._rule.tolerance
         settled_away = local >= plan.T + s.hold_time and at_rest and away
         if settled_away or (off_course and local >= s.replan_interval):
             # never move on from here: a new leg to the same stop from where the robot is, once it is at
@@ -642,7 +643,7 @@ class NMPC(ControllerBase):
                 ended = self.reference.ended(self.segment, t_now - self.segment_start, s.h, s.N)
                 diag = self.weights.diagonal(s.N, ended) if ended.any() else None
         # q and -q are the same attitude: give the (continuous) reference the measurement's sign
-        if float(Zr[REDUCED.quaternion, 0] @ z[REDUCED.quaternion]) < 0:
+        if dot(Zr[REDUCED.quaternion, 0], z[REDUCED.quaternion]) < 0:
             Zr[REDUCED.quaternion] *= -1.0
         mission_weights = None
         if self.mission.orbit is not None:  # the distance from the circle counts once on the orbit
@@ -723,7 +724,7 @@ class NMPC(ControllerBase):
             self._anchor = None
             return
         if self._anchor is None:
-            near = np.linalg.norm(z[REDUCED.position] - np.asarray(info["stop"], float)) <= self.settings.hold_radius
+            near = norm(z[REDUCED.position] - np.asarray(info["stop"], float)) <= self.settings.hold_radius
             if not near:
                 return
             self._anchor = z[REDUCED.position].copy()
@@ -818,7 +819,7 @@ def _rest_to_rest(params: RollbotParams, settings: OCPSettings, constraints: tup
 def _turned(a, b) -> float:
     """The angle between the attitudes of the quaternions ``a`` and ``b`` (either sign), rad."""
     a, b = np.asarray(a, float), np.asarray(b, float)
-    return 2.0 * math.acos(min(abs(float(a @ b)) / float(np.linalg.norm(a) * np.linalg.norm(b)), 1.0))
+    return 2.0 * math.acos(min(abs(dot(a, b)) / (norm(a) * norm(b)), 1.0))
 
 
 def _revolving_centre(ramp: Plan, Omega: float) -> np.ndarray:

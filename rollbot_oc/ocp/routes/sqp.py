@@ -32,6 +32,7 @@ import numpy as np
 from rollbot_oc.errors import ConfigError, interruptible
 from rollbot_oc.ocp.linearisation import StructuredLinearisation
 from rollbot_oc.ocp.solution import OCPSolution
+from rollbot_oc.reproducible import dot
 
 __all__ = ["SQPRoute", "RTIRoute"]
 
@@ -248,7 +249,7 @@ class SQPRoute:
         nu = 1.1 * np.abs(lam_g).max(initial=0.0) + 1e-6
         violation = self._violation(g)
         phi0 = f + nu * violation
-        slope = min(float(np.dot(grad, d)) - nu * violation, 0.0)  # merit's derivative along d
+        slope = min(dot(grad, d) - nu * violation, 0.0)  # merit's derivative along d
         alpha = 1.0
         for _ in range(16):
             f_new, g_new = self.merit(w + alpha * d, par)

@@ -381,6 +381,47 @@ def test_the_same_seed_gives_the_same_json():
     assert runs[0]["solves"] > 0 and all(k in runs[0] for k in TIMING[:-1])
 
 
+# One closed loop in a fresh interpreter, its metrics as JSON on stdout.
+_RUN_SCRIPT = """
+import sys
+from dataclasses import replace
+from pathlib import Path
+from rollbot_oc.outputs import to_json
+from rollbot_oc.problems import load_problem, run_problem
+problem = load_problem(Path(sys.argv[1]))
+problem = replace(problem, mission=problem.mission.first(1), duration=20.0)
+print(to_json(run_problem(problem, "nmpc", seed=3).metrics))
+"""
+
+
+def _numpy_openblas() -> bool:
+    import platform
+
+    blas = np.show_config(mode="dicts").get("Build Dependencies", {}).get("blas", {})
+    return platform.machine().lower() in ("x86_64", "amd64") and "openblas" in str(blas.get("name", "")).lower()
+
+
+@pytest.mark.skipif(not _numpy_openblas(), reason="needs numpy on OpenBLAS on x86-64 (its kernels chosen by CPU)")
+def test_the_same_seed_gives_the_same_json_under_every_blas_kernel():
+    """numpy's OpenBLAS picks its kernels by CPU (``OPENBLAS_CORETYPE`` forces one): the first N-shape stop with
+    onboard sensing (the estimator, the tilt filter, the planner, the RTI steps) gives the same JSON under the SSE3
+    kernels as under this CPU's own. Before ``rollbot_oc.reproducible`` its stop error differed at 1e-8 m."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    def run(coretype):
+        env = {**os.environ, "OPENBLAS_CORETYPE": coretype}
+        out = subprocess.run([sys.executable, "-c", _RUN_SCRIPT, str(PROBLEMS / "n_shape_imu.toml")], env=env,
+                             capture_output=True, text=True, check=True, timeout=600).stdout
+        return without_timings(json.loads(out))
+
+    old, own = run("Prescott"), run("")
+    assert old["completed"] and old["solves"] > 0
+    assert old == own
+
+
 def test_recovers_from_a_spin_and_a_push():
     """A 1 rad/s spin mid-leg and a 0.5 m push at the first stop: the NMPC replans from where the robot is and still
     reaches both stops at rest (without the replanning it never reached the first one in 120 s)."""

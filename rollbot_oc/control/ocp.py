@@ -467,7 +467,10 @@ def _from_simulation(run, N: int, T: float) -> tuple[np.ndarray, np.ndarray]:
     return z, u
 
 
-def _trapezoids(accels=(2.0, 4.0, 8.0), speeds=np.linspace(1.0, 9.0, 17), holds=np.linspace(0.0, 12.0, 25)):
+GUESS_ACCELS = (2.0, 4.0, 8.0)  # ramp rates of the quasi-stable guesses' speed profiles, rad/s^2
+
+
+def _trapezoids(accels=GUESS_ACCELS, speeds=np.linspace(1.0, 9.0, 17), holds=np.linspace(0.0, 12.0, 25)):
     for a in accels:
         for w in speeds:
             for sign in (1.0, -1.0):
@@ -475,9 +478,10 @@ def _trapezoids(accels=(2.0, 4.0, 8.0), speeds=np.linspace(1.0, 9.0, 17), holds=
                     yield a, sign * w, hold
 
 
-def _quasi_rest_points(s0, heading, radius_map, dt=0.05):
-    """Quasi-stable end points of every trapezoidal speed profile, vectorised over profiles."""
-    cands = np.array(list(_trapezoids()))
+def _quasi_rest_points(s0, heading, radius_map, dt=0.05, accels=GUESS_ACCELS):
+    """Quasi-stable end points of every trapezoidal speed profile (ramping at ``accels``, rad/s^2), vectorised
+    over profiles."""
+    cands = np.array(list(_trapezoids(tuple(accels))))
     acc, wc, hold = cands.T
     ramp = np.abs(wc) / acc
     total = 2 * ramp + hold
@@ -491,7 +495,7 @@ def _quasi_rest_points(s0, heading, radius_map, dt=0.05):
     return cands, pos, total
 
 
-def quasi_stable_guess(z0, goal, params: RollbotParams, N: int, keep: int = 6) -> Plan:
+def quasi_stable_guess(z0, goal, params: RollbotParams, N: int, keep: int = 6, accels=GUESS_ACCELS) -> Plan:
     """An initial guess for a rest-to-rest plan, from the quasi-stable theory (see module doc).
 
     Parameters
@@ -505,11 +509,14 @@ def quasi_stable_guess(z0, goal, params: RollbotParams, N: int, keep: int = 6) -
         Intervals of the plan.
     keep : int
         How many of the best quasi-stable candidates to simulate in the full plant.
+    accels : sequence of float
+        Ramp rates of the trapezoidal driving-speed profiles tried, rad/s^2 (``GUESS_ACCELS``).
     """
-    return quasi_stable_guesses(z0, goal, params, N, 1, keep)[0]
+    return quasi_stable_guesses(z0, goal, params, N, 1, keep, accels)[0]
 
 
-def quasi_stable_guesses(z0, goal, params: RollbotParams, N: int, count: int, keep: int = 6) -> list[Plan]:
+def quasi_stable_guesses(z0, goal, params: RollbotParams, N: int, count: int, keep: int = 6,
+                         accels=GUESS_ACCELS) -> list[Plan]:
     """The ``count`` best guesses of ``quasi_stable_guess``, best first: starts for a multi-start solve
     (a minimum-time leg has local optima, and the guess decides which one the solver finds)."""
     from rollbot_oc.simulate import heading as heading_of
@@ -518,7 +525,8 @@ def quasi_stable_guesses(z0, goal, params: RollbotParams, N: int, count: int, ke
     radius_map = _radius_map(level)
     x0 = from_reduced(z0)
     goal = np.asarray(goal, float)
-    cands, ends, totals = _quasi_rest_points(np.asarray(z0[:2], float), float(heading_of(x0)), radius_map)
+    cands, ends, totals = _quasi_rest_points(np.asarray(z0[:2], float), float(heading_of(x0)), radius_map,
+                                             accels=accels)
     score = np.linalg.norm(ends - goal[:, None], axis=0) + 0.01 * totals
     runs = []
     for i in np.argsort(score)[:max(keep, count)]:

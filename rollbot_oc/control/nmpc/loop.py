@@ -265,7 +265,8 @@ class NMPC(ControllerBase):
     def _follow_guess(self, z, t_now: float):
         """Make the current leg the quasi-stable guess from ``z``, to be refined ``tilt_settle`` s later."""
         s, stop = self.settings, self.mission.stops[self.segment]
-        guess = quasi_stable_guess(z, np.asarray(stop, float), self.params.replace(slope=0.0), s.plan.N)
+        guess = quasi_stable_guess(z, np.asarray(stop, float), self.params.replace(slope=0.0), s.plan.N,
+                                   accels=s.ride_accels)
         guess.extra = {"goal": list(map(float, stop)), "provisional": True}
         self.reference.segments[self.segment] = (guess, {"stop": stop})
         self.segment_start = t_now

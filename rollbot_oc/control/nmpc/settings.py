@@ -247,6 +247,15 @@ class NMPCSettings:
         default, 1.2 s, is the modelled time of the planner's longest solve
         (``plan.max_iter`` iterations of ``plan_iteration_time``): a refinement
         that converges is never late.
+    ride_accels : tuple of float
+        The quasi-stable guess a leg starts on at once (the first leg, and a
+        leg whose plan from rest failed) is the best of the trapezoidal
+        driving-speed profiles that ramp at these rates, rad/s^2 (the
+        planner's own starts ramp at 2, 4 and 8).  A gentle ramp leaves the
+        robot slow and near its start when the refinement takes over: from
+        there the minimum-time legs converge, and are fast, far more often
+        than from a robot already at full speed in a poor direction
+        (``benchmarks/bench_robustness_result.md`` item 16).
     tilt_settle : float
         The first leg's refinement is planned this long after the start, once
         the floor tilt estimate has settled (a plan on the level floor misses
@@ -372,6 +381,7 @@ class NMPCSettings:
     recover_speed: float = 0.02
     recover_drive: float = 0.3
     plan_handovers: tuple = (1.2,)
+    ride_accels: tuple = (2.0,)
     tilt_settle: float = 0.3
     plan_ahead: float = 0.0
     plan_iteration_time: float = 0.008
@@ -419,5 +429,9 @@ class NMPCSettings:
             raise ValueError(f"NMPC swung_angle = {self.swung_angle!r} rad is out of range: valid is (0, pi]")
         if not (math.isfinite(self.entry_shift_speed) and self.entry_shift_speed > 0):
             raise ValueError(f"NMPC entry_shift_speed = {self.entry_shift_speed!r} m/s must be positive")
+        object.__setattr__(self, "ride_accels", tuple(self.ride_accels))
+        if not self.ride_accels or not all(isinstance(a, (int, float)) and math.isfinite(a) and a > 0
+                                           for a in self.ride_accels):
+            raise ValueError(f"NMPC ride_accels = {self.ride_accels!r} must be positive ramp rates, rad/s^2")
         if not (math.isfinite(self.h) and 0 < self.h <= 0.5):
             raise ValueError(f"NMPC h = {self.h!r} s is out of range: valid is (0, 0.5]")

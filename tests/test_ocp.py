@@ -77,6 +77,14 @@ def test_initial_guess_comes_from_the_quasi_stable_theory():
     assert guess.extra["miss"] < 0.5  # its simulated end lands near the goal
 
 
+def test_quasi_stable_guesses_ramp_at_the_rates_asked():
+    """The guesses' speed profiles ramp at ``accels`` (rad/s^2): the NMPC rides a gentle one (``ride_accels``)."""
+    z0, goal = to_reduced(rest_state(PARAMS)), np.array([0.0, 1.2])
+    gentle = quasi_stable_guess(z0, goal, PARAMS, 60, accels=(2.0,))
+    assert np.abs(gentle.u).max() <= 2.0 + 1e-9 and np.abs(gentle.z[9]).max() > 1.0
+    assert np.abs(quasi_stable_guess(z0, goal, PARAMS, 60).u).max() > 2.0 + 1e-9  # the default also ramps faster
+
+
 def test_waypoint_chain_and_fixed_time_variant():
     ocp = RestToRest(PARAMS)
     start = rest_state(PARAMS, position=(-0.3, -0.3))

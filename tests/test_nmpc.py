@@ -27,8 +27,10 @@ def check_plant_limits(m):
 
 
 def check_real_time(m):
-    assert m["solve_time_p95"] < 0.1  # below the replanning period (reported, not a timing claim)
+    """Lateness is judged against the modelled compute time, so it does not depend on the machine's load; the
+    measured wall-clock times are only reported (``benchmarks/bench_nmpc.py`` measures them)."""
     assert m["failed_solves"] + m["late_solves"] <= 0.01 * m["solves"]
+    assert 0 < m["solve_time_min"] <= m["solve_time_median"] <= m["solve_time_p95"] <= m["solve_time_max"]
 
 
 def test_n_shape_faster_than_the_pid_with_real_stops():

@@ -187,3 +187,31 @@ def test_design_points_with_the_n_shape_bound_and_the_pareto_front(tmp_path, mon
     front = result.summary["design"]["pareto_front"]  # lighter: wider range and shorter recovery, slower here
     assert {row["m"] for row in front} == {0.2, 0.3, 0.306}
     assert result.summary["design"]["trends"]["tau_max"]["m"].startswith("up 2, down 0")
+
+
+def test_a_case_the_cluster_lost_is_an_error_row_and_runs_again(tmp_path, monkeypatch):
+    """A worker that dies (here: its case reported lost, as ``as_completed`` reports a ``KilledWorker``) gives
+    the case a ``worker failure`` row in the table and the summary, not a traceback; the next start runs only it."""
+    from rollbot_oc.campaign import execution
+
+    campaign = Campaign.of_function("counted", counted, [{"x": x, "log": str(tmp_path / "calls.log"),
+                                                          "stop_at": -1} for x in range(3)])
+    honest_run = execution._InProcess.run
+
+    def losing_run(self, cases):
+        for case in cases:
+            if case.inputs["x"] == 1:
+                yield execution.lost_row(case, RuntimeError("worker 127.0.0.1:4000 died"))
+            else:
+                yield from honest_run(self, [case])
+
+    monkeypatch.setattr(execution._InProcess, "run", losing_run)
+    lost = run_campaign(campaign, tmp_path / "out", workers=1, figures=False)
+    assert lost.table["status"].tolist() == ["succeeded", "error", "succeeded"]
+    assert lost.table["error"].tolist()[1] == "worker failure: RuntimeError: worker 127.0.0.1:4000 died"
+    assert (lost.summary["succeeded"], lost.summary["errors"]) == (2, 1)
+    monkeypatch.setattr(execution._InProcess, "run", honest_run)
+    again = run_campaign(campaign, tmp_path / "out", workers=1, figures=False)
+    assert (again.summary["computed"], again.summary["resumed"]) == (1, 2)
+    assert again.table["double"].tolist() == [0, 2, 4]
+    assert (tmp_path / "calls.log").read_text().split() == ["0", "2", "1"]

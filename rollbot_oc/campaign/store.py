@@ -92,15 +92,20 @@ class ResultStore:
     def _part_files(self) -> list[Path]:
         return sorted(p for p in self.parts.glob("part-*.parquet") if p.stem.split("-")[1].isdigit())
 
-    def finished(self) -> dict[str, dict]:
-        """Rows on disk by case id (the last written wins), without the cases the infrastructure lost."""
+    def rows(self) -> dict[str, dict]:
+        """Rows on disk by case id (the last written wins), the cases the infrastructure lost included."""
         import pyarrow.parquet as pq
 
         rows = {}
         for path in self._part_files():
             for row in pq.read_table(path).to_pylist():
                 rows[row["case_id"]] = row
-        return {key: row for key, row in rows.items() if not str(row.get("error") or "").startswith(WORKER_FAILURE)}
+        return rows
+
+    def finished(self) -> dict[str, dict]:
+        """Rows on disk by case id (the last written wins), without the cases the infrastructure lost."""
+        return {key: row for key, row in self.rows().items()
+                if not str(row.get("error") or "").startswith(WORKER_FAILURE)}
 
     def add(self, row: dict) -> None:
         """Keep a finished case's row; write a part file if enough are waiting or the oldest is old enough."""
@@ -134,11 +139,12 @@ class ResultStore:
     def table(self, kind, cases):
         """The table of ``cases`` (every one must have a row), as a ``pandas.DataFrame`` in case order.
 
-        The case index is the campaign's (a row written under another spec takes its new position).
+        The case index is the campaign's (a row written under another spec takes its new position).  A case the
+        infrastructure lost is an ``error`` row starting with ``WORKER_FAILURE`` (run again on the next start).
         """
         import pandas as pd
 
-        found = self.finished()
+        found = self.rows()
         rows = []
         for case in cases:
             row = dict(found[case.id])

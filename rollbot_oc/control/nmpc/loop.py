@@ -156,6 +156,7 @@ class NMPC(ControllerBase):
         plan = pending["plan"]
         self.reference = Reference([(plan, {})], self._orbit(self._entry(plan.T), plan.extra["phase"]))
         self.segment_start = pending["start"]
+        self.warm = None  # a new reference: its first step starts from it (see ``_take_pending``)
 
     def _launch_entry(self, t_now: float, late: Plan | None = None):
         """Plan the entry onto the orbit from where the ramp followed now will be ``entry_handover`` s later, for
@@ -429,6 +430,10 @@ class NMPC(ControllerBase):
         self.reference.segments[self.segment] = (pending["plan"], {"stop": self.mission.stops[self.segment]})
         self.segment_start = start
         self._anchor = None
+        # the warm start (iterate and multipliers) solved the reference replaced: the next step starts from this
+        # one (warm, its first steps chatter between the motor's limits and the robot leaves the new leg:
+        # ``benchmarks/bench_robustness_result.md`` item 20)
+        self.warm = None
         return True
 
     # -- the loop ---------------------------------------------------------------------------------

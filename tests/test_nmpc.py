@@ -11,7 +11,7 @@ from rollbot_oc.codegen import compiler
 from rollbot_oc.control.missions import Waypoints
 from rollbot_oc.control.nmpc import NMPC, NMPCSettings, RTISolver, TiltEstimator, TrackingWeights
 from rollbot_oc.control.ocp import RestToRest, SolveFailed
-from rollbot_oc.dynamics import NZ, REDUCED
+from rollbot_oc.dynamics import FULL, NZ, REDUCED
 from rollbot_oc.params import PARAM_INDEX, RollbotParams
 from rollbot_oc.problems import load_problem, make_controller, run_problem
 
@@ -549,6 +549,45 @@ def test_the_first_refinement_starts_where_the_robot_will_be_not_where_the_guess
     assert abs(true[drive] - on_guess[drive]) > 3.0  # the robot is far off the guess's motor speed ...
     assert abs(true[drive] - planned[drive]) < 0.2 * abs(true[drive] - on_guess[drive])  # ... not the plan's
     assert np.linalg.norm(true[position] - planned[position]) < np.linalg.norm(true[position] - on_guess[position])
+
+
+def test_a_refined_leg_taking_over_is_tracked_from_itself_not_the_warm_start_of_the_guess(monkeypatch):
+    """Random course 11: the first leg's refinement takes over at 1.5 s, reversing the motor at 25 rad/s^2.
+    Warm-started from the solution that tracked the guess (its iterate and multipliers), the RTI steps chatter
+    between the motor's limits (+-30 rad/s^2) and the robot is 0.25 m off the new leg within a second, which
+    costs a recovery (first stop reached at 17.6 s instead of 10.05 s).  The new leg's first step starts from
+    the leg itself: the robot stays within 1.5 cm of it."""
+    from rollbot_oc.courses import random_course
+
+    course = random_course(seed=0, index=11)
+    problem = replace(course.problem, mission=course.problem.mission.first(1), duration=2.6)
+    take = NMPC._take_pending
+
+    def run(keep_warm: bool):
+        taken = []
+
+        def record(self, t_now):
+            warm = self.warm
+            took = take(self, t_now)
+            if took:
+                taken.append((self.segment_start, self.reference.segments[self.segment][0]))
+                if keep_warm:  # the behaviour before the fix
+                    self.warm = warm
+            return took
+
+        monkeypatch.setattr(NMPC, "_take_pending", record)
+        result = run_problem(problem, "nmpc", params=course.believed, seed=course.noise_seed,
+                             show_progress=False)
+        start, plan = taken[0]
+        t = result.result.t
+        after = (t >= start) & (t <= start + 1.0)
+        off = [np.linalg.norm(result.result.x[FULL.position, k] - plan.state(t[k] - start)[REDUCED.position])
+               for k in np.flatnonzero(after)]
+        return max(off), result.metrics["brakes"]
+
+    (off, brakes), (off_warm, brakes_warm) = run(False), run(True)
+    assert off < 0.05 and brakes == 0, (off, brakes)
+    assert off_warm > 0.15 and brakes_warm == 1, (off_warm, brakes_warm)  # the fix is what keeps it on the leg
 
 
 def test_a_robot_at_rest_away_from_its_stop_is_replanned_after_the_hold_time(monkeypatch):

@@ -45,10 +45,10 @@ def test_n_shape_faster_than_the_pid_with_real_stops():
     check_plant_limits(nmpc)
     check_real_time(nmpc)
     assert nmpc["plan_failures"] == 0 and max(nmpc["stop_errors"]) <= 0.03  # plan_time: benchmarks/
-    # measured 1.33 (seeds 0 to 4: median 1.25); the issue asks for 1.25
-    assert N_SHAPE_BOUND <= nmpc["completion_time"] <= 1.45 * N_SHAPE_BOUND
+    # measured 17.85 s, 1.21 (seeds 0 to 4: 17.85 to 18.15 s, median 1.23); the issue asks for 1.25
+    assert N_SHAPE_BOUND <= nmpc["completion_time"] <= 1.25 * N_SHAPE_BOUND
     # where the time went: the legs followed, past their ends until each stop was reached, waiting for plans
-    # (disjoint spans of the run; measured 16.27 + 2.2 + 0 of 19.55 s). A leg moves until its end, so each stop
+    # (disjoint spans of the run; measured 14.59 + 2.2 + 0 of 17.85 s). A leg moves until its end, so each stop
     # takes at least the rest test's 0.5 s past it (less a solve interval of 0.05 s); the robot arrives with its
     # motor still (``TrackingWeights.arrival_speed``), so hardly more (measured 0.55 s a stop, seeds 0 to 4 alike;
     # without it 0.74 to 0.92 s, here 0.92 s)
@@ -246,6 +246,10 @@ def test_estimator_and_settings_validation():
         NMPCSettings(attitude_gain=0)
     with pytest.raises(ValueError, match="ride_accels"):
         NMPCSettings(ride_accels=(2.0, 0.0))
+    with pytest.raises(ValueError, match="plan_quick = -0.1"):
+        NMPCSettings(plan_quick=-0.1)
+    with pytest.raises(ValueError, match=r"refine_fresh = 1.5 must be a whole number in \[0, 5\]"):
+        NMPCSettings(refine_fresh=1.5)
     est = TiltEstimator(RollbotParams(), 0.01)
     assert np.allclose(est.tilt, 0.0) and est.learned() == {}
 
@@ -338,6 +342,20 @@ def test_a_gentle_first_guess_reaches_the_first_stop_without_a_recovery():
     gentle, brisk = runs
     assert gentle["completed"] and gentle["brakes"] == 0 and max(gentle["stop_errors"]) <= 0.07
     assert brisk["brakes"] >= 1 and not brisk["completed"]  # not at its stop in the same 12 s
+
+
+def test_the_first_leg_is_refined_also_from_a_fresh_guess():
+    """The N-shape's first stop, seed 0: refined from the ridden guess's tail alone, the first leg is a slow
+    local optimum (measured: a 4.73 s plan, the stop at 6.25 s); refined also from a fresh quasi-stable guess
+    from the same predicted start (``refine_fresh``), ready in time with the guesses' computation charged,
+    it is a 3.37 s plan and the stop is reached at 4.9 s."""
+    base = load_problem(PROBLEMS / "n_shape.toml")
+    problem = replace(base, mission=base.mission.first(1), duration=10.0)
+    fresh, tail = [run_problem(problem, "nmpc", show_progress=False, settings=NMPCSettings(refine_fresh=k)).metrics
+                   for k in (1, 0)]
+    assert fresh["completed"] and tail["completed"] and fresh["brakes"] == tail["brakes"] == 0
+    assert fresh["stop_times"][0] + 1.0 <= tail["stop_times"][0]
+    assert fresh["plans"][0]["T"] + 1.0 <= tail["plans"][0]["T"] and fresh["plan_late"] == 0
 
 
 def test_the_filtered_attitude_ignores_the_quaternion_sign_and_restarts_after_a_gap():
@@ -509,9 +527,9 @@ def test_a_failed_refinement_of_the_first_guess_is_planned_again_further_along(m
     refinements = []
 
     def first_refinement_fails(self, start, goal, guess=None, *args, **kwargs):
-        if guess is not None and guess.status == "guess":
+        if guess is not None and guess.status == "guess":  # (the tail and the fresh guesses from one start)
             refinements.append(float(np.asarray(start)[0]))
-            if len(refinements) == 1:
+            if len(set(refinements)) == 1:
                 raise SolveFailed("injected", "Maximum_Iterations_Exceeded", None)
         return solve(self, start, goal, guess, *args, **kwargs)
 
@@ -519,7 +537,7 @@ def test_a_failed_refinement_of_the_first_guess_is_planned_again_further_along(m
     base = load_problem(PROBLEMS / "n_shape.toml")
     problem = replace(base, mission=base.mission.first(1), duration=30.0)
     m = run_problem(problem, "nmpc").metrics
-    assert len(refinements) >= 2 and refinements[1] != refinements[0]  # planned again, from elsewhere
+    assert len(set(refinements)) >= 2  # planned again, from elsewhere
     assert m["plan_failures"] >= 1 and m["plans"][0]["status"] == "Solve_Succeeded"
     assert m["completed"] and max(m["stop_errors"]) <= 0.07
 
@@ -534,11 +552,11 @@ def test_the_first_refinement_starts_where_the_robot_will_be_not_where_the_guess
 
     launched, launch = [], NMPC._launch
 
-    def record(self, segment, t_now, t_start, z_start, guess=None):
+    def record(self, segment, t_now, t_start, z_start, guess=None, *args):
         if guess is not None:  # a refinement of the guess followed now
             on_guess = self.reference.segments[self.segment][0].state(t_start - self.segment_start)
             launched.append((t_start, np.array(z_start, float), on_guess))
-        return launch(self, segment, t_now, t_start, z_start, guess)
+        return launch(self, segment, t_now, t_start, z_start, guess, *args)
 
     monkeypatch.setattr(NMPC, "_launch", record)
     course = random_course(seed=0, index=13)

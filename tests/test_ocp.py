@@ -85,6 +85,24 @@ def test_quasi_stable_guesses_ramp_at_the_rates_asked():
     assert np.abs(quasi_stable_guess(z0, goal, PARAMS, 60).u).max() > 2.0 + 1e-9  # the default also ramps faster
 
 
+def test_the_last_start_can_be_the_quickest_guess_near_the_best():
+    """``quick``: the last of the starts is the shortest simulated profile whose score is within ``quick`` of
+    the best's (the others stay the best by score); without it, or for one start, the ranking is unchanged."""
+    from rollbot_oc.control.ocp import quasi_stable_guesses
+
+    z0, goal = to_reduced(rest_state(PARAMS, heading=2.0)), np.array([0.0, 1.2])
+    ranked = quasi_stable_guesses(z0, goal, PARAMS, 40, 6)  # all six simulated, best score first
+    scores = [g.extra["miss"] for g in ranked]
+    assert scores == sorted(scores)
+    for quick in (0.0, 0.25, 10.0):
+        starts = quasi_stable_guesses(z0, goal, PARAMS, 40, 3, quick=quick)
+        near = [g.T for g in ranked[2:] if g.extra["miss"] <= scores[0] + quick]
+        assert [g.T for g in starts[:2]] == [g.T for g in ranked[:2]]
+        assert starts[2].T == (min(near) if near else ranked[2].T)
+    assert quasi_stable_guesses(z0, goal, PARAMS, 40, 3, quick=10.0)[2].T == min(g.T for g in ranked[2:])
+    assert quasi_stable_guesses(z0, goal, PARAMS, 40, 1, quick=10.0)[0].T == ranked[0].T
+
+
 def test_waypoint_chain_and_fixed_time_variant():
     ocp = RestToRest(PARAMS)
     start = rest_state(PARAMS, position=(-0.3, -0.3))

@@ -15,7 +15,7 @@ from rollbot_oc.control.nmpc.reference import Reference
 from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.tracking import RTISolver, TrackingSolver
 from rollbot_oc.control.ocp import (OCPSettings, OrbitEntry, Plan, RestToRest, SolveFailed, orbit_guess, orbit_phase,
-                                    quasi_stable_guess)
+                                    quasi_stable_guess, quasi_stable_guesses)
 from rollbot_oc.dynamics import REDUCED, rest_attitude, to_reduced
 from rollbot_oc.missions import PassMonitor, StopMonitor
 from rollbot_oc.params import RollbotParams
@@ -281,7 +281,8 @@ class NMPC(ControllerBase):
         predicts for that instant (``_predicted``; the guess's own state if beyond its horizon): the robot
         holding to the guess on a plant unlike the model drives its motor off the guess's speed (course 13:
         -7.4 against -3.0 rad/s), and a leg planned from the guess's state then starts where the robot is
-        not.  The guess's tail, moved to start at the predicted position, is the solver's initial guess."""
+        not.  The guess's tail, moved to start at the predicted position, is the solver's initial guess, and
+        ``refine_fresh`` fresh quasi-stable guesses from the same start are others."""
         self._refine_at = None
         guess = self.reference.segments[self.segment][0]
         best = None
@@ -295,12 +296,23 @@ class NMPC(ControllerBase):
             else:
                 tail.z[REDUCED.position] += (z_start[REDUCED.position] - tail.z[REDUCED.position, 0])[:, None]
             self._launch(self.segment, t_now, self.segment_start + handover, z_start, tail)
-            candidate = self._pending.pop(self.segment)
-            if candidate["plan"] is None:
-                continue
-            key = (candidate["ready"] > candidate["start"] + 1e-9, candidate["start"] + candidate["plan"].T)
-            if best is None or key < best[0]:
-                best = (key, candidate)
+            candidates = [self._pending.pop(self.segment)]
+            if self.settings.refine_fresh:  # the same leg also from fresh guesses (one set of guesses charged)
+                wall = time.perf_counter()
+                fresh = quasi_stable_guesses(z_start, np.asarray(self.mission.stops[self.segment], float),
+                                             self.params.replace(slope=0.0), self.settings.plan.N,
+                                             self.settings.refine_fresh)
+                cost = (time.perf_counter() - wall, self.settings.plan_guess_time)
+                for start_guess in fresh:
+                    self._launch(self.segment, t_now, self.segment_start + handover, z_start, start_guess, cost)
+                    candidates.append(self._pending.pop(self.segment))
+                    cost = (0.0, 0.0)
+            for candidate in candidates:
+                if candidate["plan"] is None:
+                    continue
+                key = (candidate["ready"] > candidate["start"] + 1e-9, candidate["start"] + candidate["plan"].T)
+                if best is None or key < best[0]:
+                    best = (key, candidate)
         if best is not None:
             self._pending[self.segment] = best[1]
         elif any(t_now - self.segment_start + ahead < guess.T - ahead for ahead in self.settings.plan_handovers):
@@ -315,12 +327,13 @@ class NMPC(ControllerBase):
         node = int(round((t - solved) / self.settings.h))
         return Z[:, node].copy() if 0 <= node < Z.shape[1] else None
 
-    def _launch(self, segment: int, t_now: float, t_start, z_start, guess=None):
+    def _launch(self, segment: int, t_now: float, t_start, z_start, guess=None, guessed=(0.0, 0.0)):
         """Plan leg ``segment`` from ``z_start`` on the estimated floor with the learned model
         (``TiltEstimator``); it may be used once its modelled compute time has passed, and is followed from the
-        absolute time ``t_start`` (s; None: from the moment the stop before it is reached)."""
+        absolute time ``t_start`` (s; None: from the moment the stop before it is reached).  ``guessed``: the
+        wall-clock and modelled time (s) of computing the ``guess`` given, charged to this plan."""
         s, stop = self.settings, self.mission.stops[segment]
-        wall = time.perf_counter()
+        wall = time.perf_counter() - guessed[0]
         model = self.estimator.params()  # the estimated floor and the learned masses and damping
         scale = max(s.caution_floor, s.caution ** self.log["brakes"])  # from rest: gentler after recoveries
         goals = [np.asarray(stop, float)]
@@ -333,14 +346,14 @@ class NMPC(ControllerBase):
         def attempt(goal):  # a refinement from its guess, or the fastest of several starts
             return self._legs.solve(z_start, goal, guess=guess, model=model) if guess is not None \
                 else self._legs.fastest(z_start, goal, s.plan_starts, motor_scale=scale, model=model,
-                                        resumes=s.plan_resumes)
+                                        resumes=s.plan_resumes, quick=s.plan_quick)
 
         plan, iterations, tried = self._first_converged([functools.partial(attempt, goal) for goal in goals])
         goal = goals[tried - 1]
         if plan is not None and goal is not goals[0]:
             plan.extra["stone"] = True  # from its end, the leg is planned again
             self.log["stones"] += 1
-        guesses = tried * s.plan_guess_time if guess is None else 0.0
+        guesses = tried * s.plan_guess_time if guess is None else guessed[1]
         ready = self._schedule(t_now, time.perf_counter() - wall, iterations * s.plan_iteration_time + guesses)
         self._pending[segment] = {"plan": plan, "start": t_start, "ready": ready}
 

@@ -397,7 +397,7 @@ class NMPCSettings:
     tilt_settle: float = 0.3
     plan_ahead: float = 0.0
     plan_iteration_time: float = 0.008
-    plan_starts: int = 3
+    plan_starts: int = 4
     plan_resumes: int = 3
     plan_quick: float | None = 0.25
     refine_fresh: int = 1

@@ -328,20 +328,21 @@ def test_the_shell_arrives_still_on_a_robot_that_sways():
     assert firsts[0] and firsts[0][0] <= 7.5 and (firsts[1] == [] or firsts[0][0] < firsts[1][0]), firsts
 
 
-def test_a_gentle_first_guess_reaches_the_first_stop_without_a_recovery():
-    """Random course 10: the first leg starts at once on a quasi-stable guess. Ramping at up to 8 rad/s^2 (the
-    planner's starts), the robot is near full speed when the refinement takes over, ends its leg 0.15 m short
-    and needs a recovery (measured: first stop at 19.25 s); on the gentle ride (``ride_accels``, 2 rad/s^2) it
-    stops there without one (5.53 s)."""
+def test_a_gentle_or_brisk_first_guess_reaches_the_first_stop_without_a_recovery():
+    """Random course 10: the first leg starts at once on a quasi-stable guess, ramping at 2 rad/s^2
+    (``ride_accels``) or at up to 8 (the planner's starts).  Ridden briskly, the robot used to end its leg 0.15 m
+    short and need a recovery (first stop at 19.25 s), which made the gentle ride the default; that recovery came
+    from the tracking starting warm after the refinement took over (``bench_robustness_result.md`` item 20).
+    Now both reach the stop without one (measured: 5.52 s gentle, 5.3 s brisk)."""
     from rollbot_oc.courses import random_course
 
     course = random_course(seed=0, index=10)
     problem = replace(course.problem, mission=course.problem.mission.first(1), duration=12.0)
     runs = [run_problem(problem, "nmpc", params=course.believed, seed=course.noise_seed, show_progress=False,
                         settings=NMPCSettings(ride_accels=accels)).metrics for accels in ((2.0,), (2.0, 4.0, 8.0))]
-    gentle, brisk = runs
-    assert gentle["completed"] and gentle["brakes"] == 0 and max(gentle["stop_errors"]) <= 0.07
-    assert brisk["brakes"] >= 1 and not brisk["completed"]  # not at its stop in the same 12 s
+    for m in runs:
+        assert m["completed"] and m["brakes"] == 0 and max(m["stop_errors"]) <= 0.07
+        assert m["stop_times"][0] <= 7.0  # (19.25 s with the recovery)
 
 
 def test_the_first_leg_is_refined_also_from_a_fresh_guess():

@@ -10,7 +10,7 @@ cause (the campaign's ``summary.md``), and keeps the campaign's folder
 (``--out``), so that an interrupted run carries on where it stopped and a
 run with more controllers reuses the rows already computed.
 
-The NMPC plans each leg as the robot moves (four IPOPT starts per leg) and
+The NMPC plans each leg as the robot moves (four IPOPT starts per leg from rest, two per refinement) and
 the bound is five starts per leg: the full campaign is meant for a cluster
 (``--scheduler``) or a night; ``--controllers pid`` runs the baseline alone.
 

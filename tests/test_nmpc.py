@@ -246,8 +246,9 @@ def test_estimator_and_settings_validation():
         NMPCSettings(attitude_gain=0)
     with pytest.raises(ValueError, match="ride_accels"):
         NMPCSettings(ride_accels=(2.0, 0.0))
-    with pytest.raises(ValueError, match="plan_quick = -0.1"):
-        NMPCSettings(plan_quick=-0.1)
+    for quick in (-0.1, True):
+        with pytest.raises(ValueError, match=f"plan_quick = {quick}"):
+            NMPCSettings(plan_quick=quick)
     with pytest.raises(ValueError, match=r"refine_fresh = 1.5 must be a whole number in \[0, 5\]"):
         NMPCSettings(refine_fresh=1.5)
     est = TiltEstimator(RollbotParams(), 0.01)
@@ -357,6 +358,11 @@ def test_the_first_leg_is_refined_also_from_a_fresh_guess():
     assert fresh["completed"] and tail["completed"] and fresh["brakes"] == tail["brakes"] == 0
     assert fresh["stop_times"][0] + 1.0 <= tail["stop_times"][0]
     assert fresh["plans"][0]["T"] + 1.0 <= tail["plans"][0]["T"] and fresh["plan_late"] == 0
+    # the fresh guesses' computation is charged: at 1.5 s for them the fresh leg is ready after its handover
+    # and the tail's leg takes over, as with refine_fresh = 0
+    slow = run_problem(problem, "nmpc", show_progress=False,
+                       settings=NMPCSettings(refine_fresh=1, plan_guess_time=1.5)).metrics
+    assert slow["plans"][0]["T"] == tail["plans"][0]["T"] and slow["stop_times"] == tail["stop_times"]
 
 
 def test_the_filtered_attitude_ignores_the_quaternion_sign_and_restarts_after_a_gap():

@@ -523,7 +523,7 @@ def quasi_stable_guesses(z0, goal, params: RollbotParams, N: int, count: int, ke
 
     ``quick`` (m), if given and ``count`` is at least 2: the last of the guesses is instead the shortest
     of the other simulated ones whose score (miss plus 0.01 m per second of profile) is within ``quick``
-    of the best's.  Ranked by miss, the best few are often long profiles that revolve on the way, from
+    of the best's.  Ranked by score, the best few are often long profiles that revolve on the way, from
     which the solver finds slow local optima; a quick profile that misses by more often converges to a
     much faster leg (``benchmarks/bench_robustness_result.md`` item 18).
     """

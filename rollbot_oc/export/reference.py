@@ -115,7 +115,8 @@ def plan_reference(stops, x0, params: RollbotParams, settings: NMPCSettings | No
     plans, legs = [], []
     for i, stop in enumerate(stops):
         try:
-            plan = planner.fastest(z, np.asarray(stop, float), s.plan_starts, tilt=np.zeros(2), resumes=s.plan_resumes)
+            plan = planner.fastest(z, np.asarray(stop, float), s.plan_starts, tilt=np.zeros(2), resumes=s.plan_resumes,
+                                   quick=s.plan_quick)
         except SolveFailed as exc:
             raise ConfigError(f"leg {i + 1} to stop {list(map(float, stop))} cannot be planned: {exc.status}") \
                 from None

@@ -246,7 +246,10 @@ class NMPCSettings:
         arrives first takes over where it starts.  The
         default, 1.2 s, is the modelled time of the planner's longest solve
         (``plan.max_iter`` iterations of ``plan_iteration_time``): a refinement
-        that converges is never late.
+        from the guess's tail that converges is never late.  The fresh ones
+        (``refine_fresh``) queue behind it on the one planner, with their
+        guesses' ``plan_guess_time``, and are used only if ready in time
+        (on the N-shape the tail took 52 iterations, so the fresh one has 98).
     ride_accels : tuple of float
         The quasi-stable guess a leg starts on at once (the first leg, and a
         leg whose plan from rest failed) is the best of the trapezoidal
@@ -280,13 +283,15 @@ class NMPCSettings:
     plan_quick : float or None
         The last of a leg's ``plan_starts`` is the quickest quasi-stable guess
         whose score is within this of the best's, m (``quasi_stable_guesses``'
-        ``quick``): the best few by miss are often long profiles that revolve
-        on the way, and converge to slow legs.  None: the best by score only.
+        ``quick``; chosen from the simulated guesses ranked after the others,
+        ``keep`` of them in all): the best few by score (the miss, plus 0.01 m
+        per second of profile) are often long profiles that revolve on the
+        way, and converge to slow legs.  None: the best by score only.
     refine_fresh : int
         A guess's refinement is also solved from this many fresh quasi-stable
         guesses from the same predicted start (their ``plan_guess_time`` and
         iterations are charged to the one planner); of all those ready in
-        time, the one that arrives first takes over.  The guess's tail alone
+        time, the one that arrives first takes over (at most 5).  The guess's tail alone
         often leads to a slow local optimum (the N-shape, seed 0: 4.73 s
         against 3.37 s from a fresh guess).
     plan_resumes : int
@@ -448,6 +453,7 @@ class NMPCSettings:
                                            for a in self.ride_accels):
             raise ValueError(f"NMPC ride_accels = {self.ride_accels!r} must be positive ramp rates, rad/s^2")
         if self.plan_quick is not None and not (isinstance(self.plan_quick, (int, float))
+                                                and not isinstance(self.plan_quick, bool)
                                                 and math.isfinite(self.plan_quick) and self.plan_quick >= 0):
             raise ValueError(f"NMPC plan_quick = {self.plan_quick!r} must be None or a distance >= 0 m")
         if not (isinstance(self.refine_fresh, int) and not isinstance(self.refine_fresh, bool)

@@ -37,13 +37,13 @@ def main():
     n_shape = load_problem("problems/n_shape.toml")
     circle = load_problem("problems/circle_R050.toml")
     default = NMPCSettings()
-    print(f"NMPC solve times, N = {default.N} intervals of {default.h} s, 10 states, RK4 x{default.substeps} "
+    print(f"NMPC solve times, N = {default.horizon.N} intervals of {default.horizon.h} s, 10 states, RK4 x{default.horizon.substeps} "
           "(2-core machine)")
     closed_loop("RTI, compiled C (default)" if compiler() else "RTI (no C compiler)", n_shape, default)
-    closed_loop("RTI, 30 intervals of 0.1 s, RK4 x2", n_shape, NMPCSettings(N=30, h=0.1, substeps=2, max_failures=3))
-    closed_loop("RTI, CasADi virtual machine", n_shape, NMPCSettings(compiled=False))
+    closed_loop("RTI, 30 intervals of 0.1 s, RK4 x2", n_shape, NMPCSettings(horizon={"N": 30, "h": 0.1, "substeps": 2}, recovery={"max_failures": 3}))
+    closed_loop("RTI, CasADi virtual machine", n_shape, NMPCSettings(horizon={"compiled": False}))
     closed_loop("RTI on a circle (compiled)", circle, NMPCSettings(), duration=60.0 if quick else 300.0)
-    closed_loop("IPOPT, exact Hessian, converged", circle, NMPCSettings(solver="ipopt", max_solve_time=60.0),
+    closed_loop("IPOPT, exact Hessian, converged", circle, NMPCSettings(horizon={"solver": "ipopt"}, timing={"max_solve_time": 60.0}),
                 duration=2.5 if quick else 10.0)
 
     print("\nMinimum-time rest-to-rest OCP, 1.2 m leg, N = 60 (median of 3)")

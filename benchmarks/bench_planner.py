@@ -1,7 +1,7 @@
 """The NMPC's leg planner: wall-clock time per IPOPT iteration and of the quasi-stable guesses.
 
 In simulation the NMPC uses a leg only once its modelled compute time has
-passed (``NMPCSettings.plan_iteration_time`` per IPOPT iteration and
+passed (``NMPCSettings.timing.plan_iteration`` per IPOPT iteration and
 ``plan_guess_time`` per set of quasi-stable guesses), so that runs do not
 depend on how busy the machine is.  This benchmark measures what those two
 figures stand for: it plans every leg of the N-shape and of random courses
@@ -47,13 +47,13 @@ def courses(count: int):
 def plan_course(params, start, stops, settings: NMPCSettings, per_iteration: list, guess_times: list):
     """Plan the legs of one course as the NMPC plans a leg from rest; appends the measurements."""
     level = params.replace(slope=0.0)
-    legs = RestToRest(level, settings.plan)
+    legs = RestToRest(level, settings.planner.legs)
     legs.build()
     z = to_reduced(start)
     for stop in stops:
         goal = np.asarray(stop, float)
         t0 = time.perf_counter()
-        guesses = quasi_stable_guesses(z, goal, level, settings.plan.N, settings.plan_starts)
+        guesses = quasi_stable_guesses(z, goal, level, settings.planner.legs.N, settings.planner.starts)
         guess_times.append(time.perf_counter() - t0)
         best = None
         for guess in guesses:
@@ -95,12 +95,12 @@ def main():
     finally:
         if busy is not None:
             busy.kill()
-    print(f"Leg planner (N = {settings.plan.N}, compiled stages, at most {settings.plan.max_iter} iterations), "
+    print(f"Leg planner (N = {settings.planner.legs.N}, compiled stages, at most {settings.planner.legs.max_iter} iterations), "
           f"N-shape and random courses 0 to {args.courses - 1}, {'beside a closed-loop run' if args.busy else 'idle'}")
     print(stats("time per IPOPT iteration", per_iteration, "ms", 1e3))
     print(stats("quasi-stable guesses", guess_times, "ms", 1e3))
-    print(f"  modelled: plan_iteration_time {1e3 * settings.plan_iteration_time:.1f} ms, "
-          f"plan_guess_time {1e3 * settings.plan_guess_time:.0f} ms")
+    print(f"  modelled: timing.plan_iteration {1e3 * settings.timing.plan_iteration:.1f} ms, "
+          f"timing.plan_guess {1e3 * settings.timing.plan_guess:.0f} ms")
 
 
 if __name__ == "__main__":

@@ -244,7 +244,7 @@ def _nmpc_options(args) -> dict:
         return {}
     from rollbot_oc.control.nmpc import NMPCSettings
 
-    return {"settings": NMPCSettings(realtime=True)}
+    return {"settings": NMPCSettings(timing={"realtime": True})}
 
 
 def _cmd_run(args) -> int:

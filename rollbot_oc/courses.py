@@ -44,7 +44,7 @@ from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.reproducible import norm
 
-__all__ = ["CourseRanges", "Course", "random_course", "course_duration", "DURATION_BASE", "DURATION_PER_METRE",
+__all__ = ["CourseRanges", "GateCourseRanges", "Course", "random_course", "random_gate_course", "course_duration", "DURATION_BASE", "DURATION_PER_METRE",
            "DURATION_PER_STOP"]
 
 PROTOTYPE = RollbotParams()
@@ -147,6 +147,46 @@ class CourseRanges:
             raise ConfigError(f"{source}: {exc}") from None
 
 
+@dataclass(frozen=True)
+class GateCourseRanges:
+    """The ranges courses of gates are drawn from (uniformly); m, deg.
+
+    Attributes
+    ----------
+    gates : (int, int)
+        Number of gates, inclusive.
+    spacing : (float, float)
+        Distance of each gate from the point before it (the start for the first), m.
+    max_turn_deg : float
+        Largest turn of the direction from one leg to the next (the first from the start heading), deg.
+    tolerance : float
+        A gate counts as passed within this distance, m.
+    course : CourseRanges
+        The square, floor, robot, sensors and model error (``stops`` and ``leg`` unused).
+    """
+
+    gates: tuple = (3, 6)
+    spacing: tuple = (0.4, 1.2)
+    max_turn_deg: float = 120.0
+    tolerance: float = 0.05
+    course: CourseRanges = field(default_factory=CourseRanges)
+
+    def __post_init__(self):
+        low, high = self.gates
+        if not (int(low) == low and int(high) == high and 1 <= low <= high):
+            raise ConfigError(f"gate course ranges: gates = {list(self.gates)} must be whole numbers 1 <= low <= high")
+        low, high = self.spacing
+        if not (math.isfinite(low) and math.isfinite(high) and 0 < low <= high < self.course.square / 2):
+            raise ConfigError(f"gate course ranges: spacing = {list(self.spacing)} m must be 0 < low <= high < "
+                              f"half the square ({self.course.square / 2} m)")
+        if not (math.isfinite(self.max_turn_deg) and 0 <= self.max_turn_deg <= 180):
+            raise ConfigError(f"gate course ranges: max_turn_deg = {self.max_turn_deg!r} is out of range: valid is "
+                              "[0, 180]")
+        if not (math.isfinite(self.tolerance) and 0 < self.tolerance <= 0.5):
+            raise ConfigError(f"gate course ranges: tolerance = {self.tolerance!r} m is out of range: valid is "
+                              "(0, 0.5]")
+
+
 def _is_number(value) -> bool:
     return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
 
@@ -246,12 +286,63 @@ def random_course(seed: int, index: int, ranges: CourseRanges | None = None):
     -------
     Course
     """
+    ranges = ranges or CourseRanges()
+    geometry, robot_rng, sensing, noise = _streams(seed, index)
+    start, stops, heading = _geometry(geometry, ranges)
+    return _course(seed, index, ranges, geometry, robot_rng, sensing, noise, start, stops, heading, "waypoints")
+
+
+def random_gate_course(seed: int, index: int, ranges: GateCourseRanges | None = None):
+    """The random course of gates ``index`` of the family ``seed``: 3 to 6 gates (``GateCourseRanges``), each
+    0.4 to 1.2 m from the one before (the first from the start) and turning at most 120 deg from the direction
+    of the leg before; the floor, robot, sensors and model error drawn as for the stop courses
+    (``ranges.course``), from independent streams of the same pair.
+
+    Returns
+    -------
+    Course
+        A ``gates`` problem; ``inputs`` has ``n_gates`` (no ``n_stops``).
+    """
+    ranges = ranges or GateCourseRanges()
+    geometry, robot_rng, sensing, noise = _streams(seed, index)
+    start, gates, heading = _gate_geometry(geometry, ranges)
+    return _course(seed, index, ranges.course, geometry, robot_rng, sensing, noise, start, gates, heading, "gates",
+                   tolerance=ranges.tolerance)
+
+
+def _streams(seed: int, index: int):
+    """Independent generators for the geometry, the robot, the sensors and the run's noise of course ``index``."""
+    return tuple(np.random.default_rng(s) for s in np.random.SeedSequence(seed, spawn_key=(index,)).spawn(4))
+
+
+def _gate_geometry(rng, ranges: GateCourseRanges):
+    """Start, gates (m) and the start heading (rad): each gate ``ranges.spacing`` from the point before, turning
+    at most ``ranges.max_turn_deg`` from the direction of the leg before (the start heading for the first)."""
+    half = ranges.course.square / 2
+    start = rng.uniform(-half / 2, half / 2, 2)
+    heading = float(rng.uniform(0.0, 2 * math.pi))
+    points, direction = [start], heading + math.pi / 2  # the shell rolls across its motor axis (the heading)
+    for _ in range(int(rng.integers(ranges.gates[0], ranges.gates[1] + 1))):
+        for _attempt in range(10_000):
+            turn = math.radians(rng.uniform(-ranges.max_turn_deg, ranges.max_turn_deg))
+            length = _uniform(rng, ranges.spacing)
+            candidate = points[-1] + length * np.array([math.cos(direction + turn), math.sin(direction + turn)])
+            if np.all(np.abs(candidate) <= half):
+                break
+        else:  # pragma: no cover - always possible for spacings shorter than the square
+            raise ConfigError(f"gate course ranges: no gate {list(ranges.spacing)} m on in a {ranges.course.square} "
+                              "m square")
+        points.append(candidate)
+        direction += turn
+    return start, points[1:], heading
+
+
+def _course(seed, index, ranges: CourseRanges, geometry, robot_rng, sensing, noise, start, targets, heading,
+            kind: str, tolerance: float | None = None):
+    """The ``Course`` of ``kind`` (``"waypoints"`` through stops, or ``"gates"``) on ``targets``, with its floor,
+    robot, sensors and model error drawn from the given streams."""
     from rollbot_oc.problems import problem_from_dict
 
-    ranges = ranges or CourseRanges()
-    geometry, robot_rng, sensing, noise = (np.random.default_rng(s) for s in
-                                           np.random.SeedSequence(seed, spawn_key=(index,)).spawn(4))
-    start, stops, heading = _geometry(geometry, ranges)
     slope_deg, slope_dir_deg = _uniform(geometry, ranges.slope_deg), float(geometry.uniform(0.0, 360.0))
     # a robot the model error keeps analysable too (the controller builds its radius map from its model)
     draws = 0
@@ -270,21 +361,24 @@ def random_course(seed: int, index: int, ranges: CourseRanges | None = None):
             break
     else:  # pragma: no cover
         raise NumericalFailure(f"course {seed}/{index}: no analysable model of the robot in 1000 draws")
-    path = [start] + stops
+    path = [start] + list(targets)
     length = float(sum(norm(b - a) for a, b in zip(path[:-1], path[1:])))
-    duration = course_duration(length, len(stops))
+    duration = course_duration(length, len(targets))
+    name, noun = ("course", "stops") if kind == "waypoints" else ("gate_course", "gates")
     table = {
-        "name": f"course_{seed}_{index}", "kind": "waypoints", "duration": duration,
-        "description": f"random course {index} of seed {seed}: {len(stops)} stops, {length:.2f} m",
+        "name": f"{name}_{seed}_{index}", "kind": kind, "duration": duration,
+        "description": f"random {name.replace('_', ' ')} {index} of seed {seed}: {len(targets)} {noun}, {length:.2f} m",
         "start": {"position": start.tolist(), "heading_deg": math.degrees(heading)},
         "floor": {"slope_deg": slope_deg, "slope_dir_deg": slope_dir_deg},
-        "waypoints": {"stops": [s.tolist() for s in stops]},
         "sensor": {"position_noise": position_noise_mm * 1e-3, "angle_noise": math.radians(angle_noise_deg),
                    "latency": latency},
         "params": robot,
     }
-    problem = problem_from_dict(table, f"random course (seed {seed}, index {index})")
-    inputs = {"n_stops": len(stops), "length": length, "duration": duration, "slope_deg": slope_deg,
+    table["waypoints" if kind == "waypoints" else "gates"] = (
+        {"stops": [s.tolist() for s in targets]} if kind == "waypoints"
+        else {"points": [g.tolist() for g in targets], "tolerance": tolerance})
+    problem = problem_from_dict(table, f"random {name.replace('_', ' ')} (seed {seed}, index {index})")
+    inputs = {f"n_{noun}": len(targets), "length": length, "duration": duration, "slope_deg": slope_deg,
               "slope_dir_deg": slope_dir_deg, "phi_deg": robot["phi_deg"], "m": robot["m"], "r0": robot["r0"],
               "R": robot["R"], "position_noise_mm": position_noise_mm, "angle_noise_deg": angle_noise_deg,
               "latency": latency, "shell_mass_error": float(errors[0]), "pendulum_mass_error": float(errors[1]),

@@ -80,9 +80,40 @@ def plot_top_view(result, centres=None, targets=None, circle=None, title: str | 
     return save_figure(fig, path)
 
 
-def plot_time_series(result, centres=None, title: str | None = None, path=None):
-    """Position, centre of curvature and driving speed over time (the paper's time panels)."""
-    fig, axes = plt.subplots(3, 1, figsize=(7, 6.5), sharex=True)
+def plot_modes(ax, timelines: dict, t_end: float) -> None:
+    """The controller's modes over time on ``ax``: one row per machine of ``timelines`` (its name ->
+    ``[{"mode", "t", "reason"}, ...]``, as a run's ``modes`` and ``step_modes``), each mode a coloured span
+    labelled with its name, from its start to the next change (or ``t_end``, s)."""
+    names = sorted({change["mode"] for timeline in timelines.values() for change in timeline})
+    colours = {name: plt.get_cmap("tab10")(i % 10) for i, name in enumerate(names)}
+    for row, (machine, timeline) in enumerate(timelines.items()):
+        ends = [change["t"] for change in timeline[1:]] + [t_end]
+        for change, end in zip(timeline, ends):
+            if end <= change["t"]:
+                continue
+            ax.broken_barh([(change["t"], end - change["t"])], (row - 0.4, 0.8), color=colours[change["mode"]],
+                           alpha=0.75)
+            if end - change["t"] >= 0.04 * t_end:
+                ax.text(0.5 * (change["t"] + end), row, change["mode"], ha="center", va="center", fontsize=7)
+    ax.set_yticks(range(len(timelines)), list(timelines))
+    ax.set_ylim(-0.5, len(timelines) - 0.5)
+    ax.set_xlim(0.0, t_end)
+    ax.set_xlabel("time (s)")
+
+
+def _timelines(metrics: dict) -> dict:
+    """A run's mode timelines (``modes`` of its supervisor, ``step_modes`` of its step), if it has any."""
+    return {label: metrics[key] for key, label in (("modes", "supervisor"), ("step_modes", "step"))
+            if metrics.get(key)}
+
+
+def plot_time_series(result, centres=None, title: str | None = None, path=None, modes: dict | None = None):
+    """Position, centre of curvature and driving speed over time (the paper's time panels); under them the
+    controller's modes (``modes``: a run's metrics with ``modes`` and ``step_modes``), if it has any."""
+    timelines = _timelines(modes or {})
+    rows = 4 if timelines else 3
+    fig, axes = plt.subplots(rows, 1, figsize=(7, 6.5 + 1.2 * (rows - 3)), sharex=True,
+                             height_ratios=[3, 3, 3, 1.4][:rows])
     t, s = result.t, result.position
     for i, (ax, label) in enumerate(zip(axes[:2], ("x (m)", "y (m)"))):
         ax.plot(t, s[i], color=ROBOT, label="shell centre")
@@ -93,8 +124,11 @@ def plot_time_series(result, centres=None, title: str | None = None, path=None):
     axes[0].legend(loc="best", fontsize=8)
     axes[2].plot(t, result.driving_speed, color=SPEED)
     axes[2].set_ylabel("driving speed (rad/s)")
-    axes[2].set_xlabel("time (s)")
     axes[2].grid(alpha=0.3)
+    if timelines:
+        plot_modes(axes[3], timelines, float(t[-1]))
+    else:
+        axes[2].set_xlabel("time (s)")
     if title:
         axes[0].set_title(title)
     fig.tight_layout()
@@ -213,8 +247,8 @@ def plot_comparison(runs, path=None, title: str | None = None):
     """
     from rollbot_oc.summary import compare_headline, run_verdict
 
-    fig = plt.figure(figsize=(13, 2.2 + 2.4 * len(runs)), layout="constrained")
-    grid = fig.add_gridspec(len(runs), 2, width_ratios=[1, 1.5])
+    fig = plt.figure(figsize=(13, 2.2 + 3.0 * len(runs)), layout="constrained")
+    grid = fig.add_gridspec(2 * len(runs), 2, width_ratios=[1, 1.5], height_ratios=[3, 1] * len(runs))
     ax = fig.add_subplot(grid[:, 0])
     colours = {"pid": ROBOT, "nmpc": "tab:brown"}
     problem = runs[0].problem
@@ -223,15 +257,23 @@ def plot_comparison(runs, path=None, title: str | None = None):
         colour = colours.get(run.controller, None)
         s = run.result.position
         ax.plot(s[0], s[1], color=colour, lw=1.1, label=run.controller)
-        axt = fig.add_subplot(grid[i, 1], sharey=time_axes[0] if time_axes else None)
+        axt = fig.add_subplot(grid[2 * i, 1], sharey=time_axes[0] if time_axes else None)
         axt.plot(run.result.t, run.result.driving_speed, color=colour, lw=1.0)
         _mark_progress(axt, run)
         axt.set_xlim(0.0, run.result.t[-1])
         axt.set_ylabel(f"{run.controller}\ndriving speed (rad/s)")
-        axt.set_xlabel("time (s)")
         axt.set_title(f"{run.controller}: {run_verdict(run)}", fontsize=9, loc="left")
         axt.grid(alpha=0.3)
         time_axes.append(axt)
+        axm = fig.add_subplot(grid[2 * i + 1, 1], sharex=axt)
+        timelines = _timelines(run.metrics)
+        if timelines:
+            plot_modes(axm, timelines, float(run.result.t[-1]))
+        else:
+            axm.set_yticks([])
+            axm.text(0.5, 0.5, f"{run.controller}: no modes", transform=axm.transAxes, ha="center", va="center",
+                     fontsize=8)
+            axm.set_xlabel("time (s)")
     mission = problem.mission
     if mission.targets:
         tx, ty = np.asarray(mission.targets).T
@@ -276,7 +318,7 @@ def save_run_figures(run, folder) -> list[Path]:
     paths = [folder / f"{stem}_top.png", folder / f"{stem}_time.png", folder / f"{stem}_energy.png"]
     figures = [plot_top_view(run.result, centres=run.centres, targets=targets, circle=circle, title=title,
                              path=paths[0]),
-               plot_time_series(run.result, centres=run.centres, title=title, path=paths[1]),
+               plot_time_series(run.result, centres=run.centres, title=title, path=paths[1], modes=run.metrics),
                plot_energy_and_contact(run.result, title=title, path=paths[2])]
     for figure in figures:
         plt.close(figure)

@@ -43,8 +43,8 @@ def test_the_exported_filter_is_the_numeric_one():
     params = RollbotParams()
     run = run_problem(load_bundled("n_shape").with_duration(3.0), "nmpc", seed=1)
     x, u = run.result.x, run.result.command
-    numeric = TiltEstimator(params, 0.01, s.tilt_process_noise, s.gyro_sigma, s.tilt_model_error,
-                            attitude_gain=s.attitude_gain)
+    numeric = TiltEstimator(params, 0.01, s.filter.process_noise, s.filter.gyro_sigma, s.filter.model_error,
+                            attitude_gain=s.filter.attitude_gain)
     symbolic = _estimator_update(numeric)
     tilt, P = numeric.tilt.copy(), numeric.P.copy()
     prior = P.copy()
@@ -56,7 +56,7 @@ def test_the_exported_filter_is_the_numeric_one():
         assert np.allclose(tilt, numeric.tilt, atol=1e-12, rtol=0) and np.allclose(P, numeric.P, atol=1e-12, rtol=0)
     assert np.linalg.norm(tilt) > 0 and np.trace(P) < 0.5 * np.trace(prior)  # it did learn something
     with pytest.raises(ValueError, match="attitude_gain = 0.05"):
-        control_step(params, replace(s, attitude_gain=0.05))
+        control_step(params, s.replace(filter={"attitude_gain": 0.05}))
 
 
 @pytest.mark.slow
@@ -121,16 +121,16 @@ def test_the_step_weighs_the_arrival_only_past_the_legs_end():
     from rollbot_oc.export.project import embedded_controller
     from rollbot_oc.export.step import EMBEDDED_SETTINGS as s
 
-    assert s.waypoint_weights.arrival_speed > 0 and s.waypoint_weights.arrival_omega > 0
+    assert s.weights.legs.arrival_speed > 0 and s.weights.legs.arrival_omega > 0
     n_shape = load_bundled("n_shape")
     problem = replace(n_shape, mission=n_shape.mission.first(1), duration=3.0)  # one leg planned
-    still = replace(s, waypoint_weights=replace(s.waypoint_weights, arrival_speed=0.0, arrival_omega=0.0))
+    still = s.replace(weights={"legs": replace(s.weights.legs, arrival_speed=0.0, arrival_omega=0.0)})
     commands = []
     for settings in (still, s):
         controller, step, reference = embedded_controller(problem, settings=settings, record=True)
         run_problem(problem, controller, show_progress=False)
         commands.append(np.array(controller.commands))
-    within = int(round((reference.durations[0] - s.N * s.h) / problem.dt))  # the horizon within the first leg
+    within = int(round((reference.durations[0] - s.horizon.N * s.horizon.h) / problem.dt))  # the horizon within the first leg
     assert 0 < within < commands[0].size
     assert np.array_equal(commands[0][:within], commands[1][:within])
     assert not np.allclose(commands[0], commands[1])
@@ -138,10 +138,10 @@ def test_the_step_weighs_the_arrival_only_past_the_legs_end():
     from rollbot_oc.export.step import _RTI
 
     rti = _RTI(problem.params.replace(slope=0.0), s)
-    ended = np.arange(s.N + 1) >= 10
+    ended = np.arange(s.horizon.N + 1) >= 10
     for name, (track, arrival, _hold) in rti.weights.items():
-        expected = rti.solver._parameters(np.zeros(10), np.zeros((10, s.N + 1)), np.zeros(s.N), rti.p_nominal, None,
-                                          s.waypoint_weights.diagonal(s.N, ended))[name]
+        expected = rti.solver._parameters(np.zeros(10), np.zeros((10, s.horizon.N + 1)), np.zeros(s.horizon.N), rti.p_nominal, None,
+                                          s.weights.legs.diagonal(s.horizon.N, ended))[name]
         assert np.array_equal(np.asarray(track) + (np.asarray(arrival) - np.asarray(track)) * ended, expected), name
 
 

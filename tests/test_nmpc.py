@@ -10,6 +10,7 @@ import pytest
 from rollbot_oc.codegen import compiler
 from rollbot_oc.control.missions import Waypoints
 from rollbot_oc.control.nmpc import NMPC, NMPCSettings, RTISolver, TiltEstimator, TrackingWeights
+from rollbot_oc.control.nmpc.supervisors import LegKind, StopsSupervisor
 from rollbot_oc.control.ocp import RestToRest, SolveFailed
 from rollbot_oc.dynamics import FULL, NZ, REDUCED
 from rollbot_oc.params import PARAM_INDEX, RollbotParams
@@ -54,6 +55,13 @@ def test_n_shape_faster_than_the_pid_with_real_stops():
     # without it 0.74 to 0.92 s, here 0.92 s)
     assert 4 * (0.5 - 0.05) <= nmpc["stop_wait"] <= 4 * 0.85
     assert nmpc["plan_duration"] + nmpc["stop_wait"] + nmpc["plan_wait"] <= nmpc["completion_time"]
+    # the mode timeline: ridden, then legs tracked and held at each stop, finished, done; the step always solving
+    modes = nmpc["modes"]
+    assert [m["mode"] for m in modes][:2] == ["ride", "track"] and [m["mode"] for m in modes][-2:] == ["finish", "done"]
+    assert sum(m["mode"] == "hold" for m in modes) == 4 and all(a["t"] <= b["t"] for a, b in zip(modes, modes[1:]))
+    # finished once the last stop's rest test (0.5 s at rest) has passed, at the next solve instant
+    assert 0.5 <= modes[-2]["t"] - nmpc["stop_times"][-1] <= 0.5 + 0.05 + 1e-9
+    assert [m["mode"] for m in nmpc["step_modes"]] == ["solve", "off"]
 
 
 def test_arrival_weights_weigh_only_the_nodes_past_the_leg():
@@ -139,9 +147,9 @@ def test_a_far_start_tries_only_entries_long_enough_and_follows_the_first_in_tim
     problem = load_problem(PROBLEMS / "approach.toml").with_duration(20.0)
     nmpc = make_controller("nmpc", problem)
     nmpc.prepare(problem.initial_state())
-    s, times = nmpc.settings, nmpc._entry_times()
-    assert times[0] > min(s.entry_times) and times[0] * s.entry_shift_speed >= nmpc._entry_shift
-    assert list(times) == [d for d in s.entry_times if d >= times[0]]  # and the longer ones, in turn
+    s, times = nmpc.settings, nmpc.supervisor._entry_times()
+    assert times[0] > min(s.entry.times) and times[0] * s.entry.shift_speed >= nmpc.supervisor._entry_shift
+    assert list(times) == [d for d in s.entry.times if d >= times[0]]  # and the longer ones, in turn
     m = run_problem(problem, nmpc).metrics
     assert m["plan_failures"] == 0 and m["plan_late"] == 0 and m["plan_solves"] == 1
     assert [p["T"] for p in m["plans"]] == [pytest.approx(times[0])]
@@ -154,7 +162,7 @@ def test_failed_solves_fall_back_without_crashing(monkeypatch):
     failures pile up, the PID."""
     calls = {"n": 0, "z": None}
     solve = RTISolver.solve
-    run = NMPCSettings().max_failures + 2  # a run of failures longer than the NMPC waits out
+    run = NMPCSettings().recovery.max_failures + 2  # a run of failures longer than the NMPC waits out
 
     def flaky(self, z, *args, **kwargs):
         if z is not calls["z"]:  # a new solve instant (the cold retry of a failed warm solve is the same one)
@@ -205,7 +213,7 @@ def test_ipopt_route_converges_on_the_same_problem():
     """IPOPT (exact Hessian) is too slow for real time here, so it is studied without the real-time limit
     (on 30 intervals of 0.1 s: the route, not the horizon, is what this checks)."""
     problem = load_problem(PROBLEMS / "circle_R065.toml").with_duration(1.5)  # 15 periods of IPOPT to convergence
-    settings = NMPCSettings(solver="ipopt", max_solve_time=60.0, N=30, h=0.1, substeps=2)
+    settings = NMPCSettings(horizon={"solver": "ipopt", "N": 30, "h": 0.1, "substeps": 2}, timing={"max_solve_time": 60.0})
     m = run_problem(problem, "nmpc", settings=settings).metrics
     assert m["failed_solves"] == 0 and m["fallback_pid"] == 0
     assert set(m["solver_statuses"]) <= {"Solve_Succeeded", "Solved_To_Acceptable_Level"}
@@ -233,24 +241,60 @@ def test_compiled_and_interpreted_linearisations_agree():
         assert np.allclose(x, y, rtol=1e-12, atol=1e-12)
 
 
+def test_settings_every_field_checked():
+    """``NMPCSettings``: at most 12 groups, each frozen; every field of every group refuses a value of the wrong
+    kind or out of its range in one line naming the group, the field and the value."""
+    from dataclasses import FrozenInstanceError, fields
+
+    from rollbot_oc.control.nmpc.settings import _GROUPS
+
+    settings = NMPCSettings()
+    assert len(fields(settings)) <= 12 and {f.name for f in fields(settings)} == set(_GROUPS)
+    bad = {int: [1.5, -1, True, "3"], float: [float("nan"), -1.0, "x", True], str: ["other"], bool: [1, "yes"],
+           tuple: [(0.0,), (-1.0,), 5.0, ("R",)], "weights": [{"position": 1}]}
+    checked = 0
+    for name, group in _GROUPS.items():
+        with pytest.raises(FrozenInstanceError):
+            setattr(getattr(settings, name), fields(group)[0].name, None)
+        for f in fields(group):
+            assert "check" in f.metadata, f"{name}.{f.name} is not checked"
+            default = getattr(getattr(settings, name), f.name)
+            kind = "weights" if name == "weights" and f.name != "gate" else type(default)
+            refused = 0
+            for value in bad.get(kind, [object()]):
+                try:
+                    NMPCSettings(**{name: {f.name: value}})
+                except ValueError as exc:
+                    message = str(exc)
+                    assert "\n" not in message and f"{name}.{f.name}" in message, message
+                    refused += 1
+            assert refused >= 1, f"{name}.{f.name} accepts every bad value"
+            checked += 1
+    assert checked >= 50
+
+
 def test_estimator_and_settings_validation():
     with pytest.raises(ValueError, match="solver"):
-        NMPCSettings(solver="fatrop")
+        NMPCSettings(horizon={"solver": "fatrop"})
     with pytest.raises(ValueError, match="h = 0.015"):
-        NMPC(Waypoints(([0.0, 0.0],)), settings=NMPCSettings(h=0.015))
-    with pytest.raises(ValueError, match="cannot learn 'R'"):
-        NMPCSettings(learn=("M", "R"))
+        NMPC(Waypoints(([0.0, 0.0],)), settings=NMPCSettings(horizon={"h": 0.015}))
+    with pytest.raises(ValueError, match="filter.learn = \\('M', 'R'\\) is out of range: valid is names among M, m"):
+        NMPCSettings(filter={"learn": ("M", "R")})
     with pytest.raises(ValueError, match="learn_sigma = 0.5"):
-        NMPCSettings(learn_sigma=0.5)
+        NMPCSettings(filter={"learn_sigma": 0.5})
     with pytest.raises(ValueError, match=r"attitude_gain = 0 is out of range: valid is \(0, 1\]"):
-        NMPCSettings(attitude_gain=0)
+        NMPCSettings(filter={"attitude_gain": 0})
     with pytest.raises(ValueError, match="ride_accels"):
-        NMPCSettings(ride_accels=(2.0, 0.0))
+        NMPCSettings(planner={"ride_accels": (2.0, 0.0)})
     for quick in (-0.1, True):
-        with pytest.raises(ValueError, match=f"plan_quick = {quick}"):
-            NMPCSettings(plan_quick=quick)
-    with pytest.raises(ValueError, match=r"refine_fresh = 1.5 must be a whole number in \[0, 5\]"):
-        NMPCSettings(refine_fresh=1.5)
+        with pytest.raises(ValueError, match=f"planner.quick = {quick}"):
+            NMPCSettings(planner={"quick": quick})
+    with pytest.raises(ValueError, match=r"planner.fresh = 1.5 is out of range: valid is whole numbers in \[0, 5\]"):
+        NMPCSettings(planner={"fresh": 1.5})
+    with pytest.raises(ValueError, match="NMPC horizon has no field 'n': valid are N, h"):
+        NMPCSettings(horizon={"n": 30})
+    with pytest.raises(ValueError, match="NMPC settings have no group 'plan'"):
+        NMPCSettings().replace(plan={"N": 30})
     est = TiltEstimator(RollbotParams(), 0.01)
     assert np.allclose(est.tilt, 0.0) and est.learned() == {}
 
@@ -322,7 +366,7 @@ def test_the_shell_arrives_still_on_a_robot_that_sways():
     problem = replace(course.problem, mission=first, duration=8.0)
     firsts = []
     for omega in (TrackingWeights.for_waypoints().arrival_omega, 0.0):
-        settings = NMPCSettings(waypoint_weights=replace(TrackingWeights.for_waypoints(), arrival_omega=omega))
+        settings = NMPCSettings(weights={"legs": replace(TrackingWeights.for_waypoints(), arrival_omega=omega)})
         run = run_problem(problem, "nmpc", params=course.believed, seed=course.noise_seed, show_progress=False,
                           settings=settings)
         firsts.append(run.metrics["stop_times"][:1])
@@ -340,7 +384,7 @@ def test_a_gentle_or_brisk_first_guess_reaches_the_first_stop_without_a_recovery
     course = random_course(seed=0, index=10)
     problem = replace(course.problem, mission=course.problem.mission.first(1), duration=12.0)
     runs = [run_problem(problem, "nmpc", params=course.believed, seed=course.noise_seed, show_progress=False,
-                        settings=NMPCSettings(ride_accels=accels)).metrics for accels in ((2.0,), (2.0, 4.0, 8.0))]
+                        settings=NMPCSettings(planner={"ride_accels": accels})).metrics for accels in ((2.0,), (2.0, 4.0, 8.0))]
     for m in runs:
         assert m["completed"] and m["brakes"] == 0 and max(m["stop_errors"]) <= 0.07
         assert m["stop_times"][0] <= 7.0  # (19.25 s with the recovery)
@@ -353,7 +397,7 @@ def test_the_first_leg_is_refined_also_from_a_fresh_guess():
     it is a 3.37 s plan and the stop is reached at 4.9 s."""
     base = load_problem(PROBLEMS / "n_shape.toml")
     problem = replace(base, mission=base.mission.first(1), duration=10.0)
-    fresh, tail = [run_problem(problem, "nmpc", show_progress=False, settings=NMPCSettings(refine_fresh=k)).metrics
+    fresh, tail = [run_problem(problem, "nmpc", show_progress=False, settings=NMPCSettings(planner={"fresh": k})).metrics
                    for k in (1, 0)]
     assert fresh["completed"] and tail["completed"] and fresh["brakes"] == tail["brakes"] == 0
     assert fresh["stop_times"][0] + 1.0 <= tail["stop_times"][0]
@@ -361,7 +405,7 @@ def test_the_first_leg_is_refined_also_from_a_fresh_guess():
     # the fresh guesses' computation is charged: at 1.5 s for them the fresh leg is ready after its handover
     # and the tail's leg takes over, as with refine_fresh = 0
     slow = run_problem(problem, "nmpc", show_progress=False,
-                       settings=NMPCSettings(refine_fresh=1, plan_guess_time=1.5)).metrics
+                       settings=NMPCSettings(planner={"fresh": 1}, timing={"plan_guess": 1.5})).metrics
     assert slow["plans"][0]["T"] == tail["plans"][0]["T"] and slow["stop_times"] == tail["stop_times"]
 
 
@@ -520,7 +564,7 @@ def test_a_leg_that_cannot_be_planned_goes_by_a_stepping_stone(monkeypatch):
     base = load_problem(PROBLEMS / "n_shape.toml")
     problem = replace(base, mission=base.mission.first(2), duration=60.0)
     m = run_problem(problem, "nmpc").metrics
-    stone = NMPCSettings().stone_distance
+    stone = NMPCSettings().recovery.stone_distance
     assert any(d > 0.7 for d in tried) and any(abs(d - stone) < 1e-9 for d in tried)
     assert m["stones"] >= 1 and m["brakes"] == 0 and m["plan_failures"] >= 1
     assert m["completed"] and max(m["stop_errors"]) <= 0.07
@@ -557,7 +601,7 @@ def test_the_first_refinement_starts_where_the_robot_will_be_not_where_the_guess
     from rollbot_oc.courses import random_course
     from rollbot_oc.dynamics import to_reduced
 
-    launched, launch = [], NMPC._launch
+    launched, launch = [], StopsSupervisor._launch
 
     def record(self, segment, t_now, t_start, z_start, guess=None, *args):
         if guess is not None:  # a refinement of the guess followed now
@@ -565,7 +609,7 @@ def test_the_first_refinement_starts_where_the_robot_will_be_not_where_the_guess
             launched.append((t_start, np.array(z_start, float), on_guess))
         return launch(self, segment, t_now, t_start, z_start, guess, *args)
 
-    monkeypatch.setattr(NMPC, "_launch", record)
+    monkeypatch.setattr(StopsSupervisor, "_launch", record)
     course = random_course(seed=0, index=13)
     run = run_problem(course.problem, "nmpc", params=course.believed, seed=course.noise_seed, duration=2.0)
     t_start, planned, on_guess = launched[0]
@@ -586,21 +630,21 @@ def test_a_refined_leg_taking_over_is_tracked_from_itself_not_the_warm_start_of_
 
     course = random_course(seed=0, index=11)
     problem = replace(course.problem, mission=course.problem.mission.first(1), duration=2.6)
-    take = NMPC._take_pending
+    take = StopsSupervisor._take_pending
 
     def run(keep_warm: bool):
         taken = []
 
-        def record(self, t_now):
-            warm = self.warm
-            took = take(self, t_now)
+        def record(self, k, reason):
+            warm = self.c.step.warm
+            took = take(self, k, reason)
             if took:
                 taken.append((self.segment_start, self.reference.segments[self.segment][0]))
                 if keep_warm:  # the behaviour before the fix
-                    self.warm = warm
+                    self.c.step.warm = warm
             return took
 
-        monkeypatch.setattr(NMPC, "_take_pending", record)
+        monkeypatch.setattr(StopsSupervisor, "_take_pending", record)
         result = run_problem(problem, "nmpc", params=course.believed, seed=course.noise_seed,
                              show_progress=False)
         start, plan = taken[0]
@@ -619,9 +663,9 @@ def test_a_robot_at_rest_away_from_its_stop_is_replanned_after_the_hold_time(mon
     """The first leg's guess is aimed 0.3 m short of the stop and its refinements fail: the robot rides the
     guess to its end and comes to rest away from the stop.  It gets a new leg from there ``hold_time`` after
     the guess's end (not before, and not seconds later), and reaches the stop at rest."""
-    from rollbot_oc.control.nmpc import loop
+    from rollbot_oc.control.nmpc.supervisors import stops as supervisor
 
-    solve, aim = RestToRest.solve, loop.quasi_stable_guess
+    solve, aim = RestToRest.solve, supervisor.quasi_stable_guess
     base = load_problem(PROBLEMS / "n_shape.toml")
     stop = np.asarray(base.mission.stops[0], float)
 
@@ -636,22 +680,24 @@ def test_a_robot_at_rest_away_from_its_stop_is_replanned_after_the_hold_time(mon
             raise SolveFailed("injected", "Maximum_Iterations_Exceeded", None)
         return solve(self, start, goal, guess, *args, **kwargs)
 
-    brakes, brake = [], NMPC._brake
+    brakes, brake = [], StopsSupervisor._brake
 
-    def record(self, z, t_now, *args, **kwargs):
+    def record(self, z, k, *args, **kwargs):
         plan = self.reference.segments[self.segment][0]
-        brakes.append((t_now - self.segment_start - plan.T, float(np.linalg.norm(z[REDUCED.position] - stop)),
-                       bool(plan.extra.get("provisional"))))
-        return brake(self, z, t_now, *args, **kwargs)
+        brakes.append((k * self.c.dt - self.segment_start - plan.T, float(np.linalg.norm(z[REDUCED.position] - stop)),
+                       self.kinds[self.segment] is LegKind.GUESS, args[0]))
+        return brake(self, z, k, *args, **kwargs)
 
-    monkeypatch.setattr(loop, "quasi_stable_guess", short_guess)
+    monkeypatch.setattr(supervisor, "quasi_stable_guess", short_guess)
     monkeypatch.setattr(RestToRest, "solve", refinements_fail)
-    monkeypatch.setattr(NMPC, "_brake", record)
+    monkeypatch.setattr(StopsSupervisor, "_brake", record)
     problem = replace(base, mission=base.mission.first(1), duration=30.0)
     m = run_problem(problem, "nmpc").metrics
-    hold = NMPCSettings().hold_time
-    after, away, provisional = brakes[0]
+    hold = NMPCSettings().arrival.hold_time
+    after, away, provisional, reason = brakes[0]
     assert provisional and away > 0.07  # at the guess's end, outside the tolerance
+    assert reason == "at rest outside the stop's tolerance hold_time after the leg's end"
+    assert (m["modes"][1]["mode"], m["modes"][1]["reason"]) == ("brake", reason)  # the run's mode timeline says so
     assert hold - 1e-9 <= after <= hold + 0.5  # replanned once the hold time has passed (at rest by then)
     assert m["completed"] and max(m["stop_errors"]) <= 0.07
 
@@ -661,37 +707,37 @@ def test_a_state_no_command_keeps_within_the_limits_gets_a_relaxed_solve():
     torque that small, so the QP is infeasible; it is solved once more without the path constraints, and the
     status says so."""
     params = RollbotParams()
-    settings = NMPCSettings(torque_margin=0.01)
-    solver = RTISolver(params, settings, settings.waypoint_weights)
+    settings = NMPCSettings(limits={"torque_margin": 0.01})
+    solver = RTISolver(params, settings, settings.weights.legs)
     z0 = np.zeros(10)
     z0[2], z0[3] = math.cos(math.radians(30)), math.sin(math.radians(30))  # 60 deg about the motor axis
-    Zr = np.tile(z0[:, None], (1, settings.N + 1))
-    x, _, status, ok, _ = solver.solve(z0, Zr, np.zeros(settings.N), params.vector())
+    Zr = np.tile(z0[:, None], (1, settings.horizon.N + 1))
+    x, _, status, ok, _ = solver.solve(z0, Zr, np.zeros(settings.horizon.N), params.vector())
     assert ok and status.startswith("relaxed (")
     _, U = solver.split(x)
     assert np.all(np.abs(U) <= params.max_accel + 1e-9)
     z0[2], z0[3] = 1.0, 0.0  # hanging: the same solver solves the full problem
-    assert solver.solve(z0, Zr * 0 + z0[:, None], np.zeros(settings.N), params.vector())[2] == "success"
+    assert solver.solve(z0, Zr * 0 + z0[:, None], np.zeros(settings.horizon.N), params.vector())[2] == "success"
 
 
 def test_one_constraint_reaches_every_problem_of_the_nmpc():
     """``NMPCSettings.constraints``: one line, and the legs the NMPC plans and its tracking problem keep it."""
-    from rollbot_oc.control.nmpc.loop import _rest_to_rest
+    from rollbot_oc.control.nmpc.supervisors.stops import _rest_to_rest
     from rollbot_oc.control.nmpc.tracking import RTISolver
     from rollbot_oc.dynamics import rest_state, to_reduced
     from rollbot_oc.ocp.constraints import position_box
 
     lower, upper = np.array([-0.35, -0.35]), np.array([1.25, 1.25])
-    settings = NMPCSettings(constraints=(lambda ocp: position_box(ocp, lower, upper),))
+    settings = NMPCSettings(limits={"constraints": (lambda ocp: position_box(ocp, lower, upper),)})
     params = RollbotParams()
-    legs = _rest_to_rest(params, settings.plan, settings.constraints)
+    legs = _rest_to_rest(params, settings.planner.legs, settings.limits.constraints)
     start = rest_state(params, position=(-0.3, -0.3))
-    free = _rest_to_rest(params, settings.plan, ()).fastest(start, [0.0, 0.0], 2)
+    free = _rest_to_rest(params, settings.planner.legs, ()).fastest(start, [0.0, 0.0], 2)
     fenced = legs.fastest(start, [0.0, 0.0], 2)
     assert (free.z[0:2] < lower[:, None] - 0.05).any()  # the fastest leg swings out of the box ...
     assert (fenced.z[0:2] >= lower[:, None] - 1e-6).all() and (fenced.z[0:2] <= upper[:, None] + 1e-6).all()
     assert fenced.T >= free.T - 1e-6  # ... and keeping in costs time
-    tracking = RTISolver(params, settings, settings.waypoint_weights).route.transcription
+    tracking = RTISolver(params, settings, settings.weights.legs).route.transcription
     lbw, ubw = tracking.bounds(tracking.parameter_vector(
         {name: np.zeros(sl.stop - sl.start) for name, sl in tracking.layout.parameters.items()}
         | {name: np.zeros(sl.stop - sl.start) for name, sl in tracking.layout.stage_parameters.items()}
@@ -701,9 +747,9 @@ def test_one_constraint_reaches_every_problem_of_the_nmpc():
     assert np.all(np.isinf(lbw[positions[:, 0]]))  # node 0 is the measured state: not bounded
     # 5 cm outside the box at rest: no command brings the robot back within the next 0.1 s, so the QP with the box
     # has no solution; the measured state (node 0) is not bounded, and the QP is solved once more without the box
-    solver = RTISolver(params, settings, settings.waypoint_weights)
+    solver = RTISolver(params, settings, settings.weights.legs)
     z0 = to_reduced(rest_state(params, position=(-0.40, -0.30)))
-    _, _, status, ok, _ = solver.solve(z0, np.tile(z0[:, None], (1, settings.N + 1)), np.zeros(settings.N),
+    _, _, status, ok, _ = solver.solve(z0, np.tile(z0[:, None], (1, settings.horizon.N + 1)), np.zeros(settings.horizon.N),
                                        params.vector())
     assert ok and status.startswith("relaxed ("), status
 

@@ -155,7 +155,7 @@ def test_qps_through_buffers_equal_qps_called_by_name():
 
     problem = load_problem(ROOT / "problems" / "n_shape.toml")
     solver = make_controller("nmpc", problem).solver
-    route, tr, N = solver.route, solver.route.transcription, solver.settings.N
+    route, tr, N = solver.route, solver.route.transcription, solver.settings.horizon.N
     lin = route.linearisation
     z0 = to_reduced(problem.initial_state())
     for buffered, named in zip(route._buffered, route.qps):  # HPIPM, then qrqp

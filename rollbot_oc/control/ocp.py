@@ -21,11 +21,8 @@ force (no slide).  The margins leave room for what the plan's prediction
 error and the plant's slope will ask of the feedback.  More constraints
 (``constraints``: functions of the ``OCP``) join them in one line.
 
-Initial guesses come from the quasi-stable theory, never zeros: a search over
-trapezoidal driving-speed profiles (ramp up, hold, ramp down) whose
-quasi-stable kinematics (revolving rate and radius from ``RadiusMap``) end
-nearest the goal, then the best few simulated in the full plant, whose
-trajectory seeds every node.
+Initial guesses come from the quasi-stable theory, never zeros
+(``control.guesses``); a solved trajectory is a ``Plan`` (``control.plan``).
 
 IPOPT uses a limited-memory Hessian here, with the stages and their Jacobians
 compiled to C where a compiler exists (``OCPSettings.compiled``): each
@@ -35,35 +32,23 @@ machine, and it needs no more of them (``benchmarks/bench_nmpc.py``).
 
 from __future__ import annotations
 
-import functools
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
 from rollbot_oc.codegen import compiler
-from rollbot_oc.errors import NotConverged
-from rollbot_oc.dynamics import NZ, REDUCED, from_reduced, to_reduced
+from rollbot_oc.dynamics import NZ, REDUCED, to_reduced
 from rollbot_oc.params import PARAM_INDEX, TILT, RollbotParams
 from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_state
-from rollbot_oc.reproducible import norm
 from rollbot_oc.rotations import quat_multiply
 from rollbot_oc.ocp import OCP, FreeTime, bounded
 from rollbot_oc.ocp.constraints import at_rest, robot_limits
-from rollbot_oc.simulate import simulate
+from rollbot_oc.control.guesses import orbit_guess, orbit_phase, quasi_stable_guess, quasi_stable_guesses
+from rollbot_oc.control.plan import Plan, SolveFailed, orbit_state
 
 __all__ = ["OCPSettings", "Plan", "RestToRest", "OrbitEntry", "plan_waypoints",
            "quasi_stable_guess", "quasi_stable_guesses", "orbit_state", "orbit_phase", "orbit_guess", "SolveFailed"]
-
-
-
-class SolveFailed(NotConverged):
-    """An optimisation did not converge; carries its solver status and the failed plan."""
-
-    def __init__(self, what: str, status: str, plan=None):
-        super().__init__(what, status, plan)
-        self.plan = plan
 
 
 @dataclass(frozen=True)
@@ -119,93 +104,6 @@ class OCPSettings:
     accel_margin: float = 1.0
     expand: bool = True
     compiled: bool = False
-
-
-def orbit_state(qs_reduced, centre, phase):
-    """The reduced quasi-stable state ``qs_reduced`` (revolving about the origin) turned by ``phase`` about ``centre``.
-
-    Works on CasADi symbols and on numbers.
-    """
-    c, s = ca.cos(phase), ca.sin(phase)
-    rot = ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
-    R = REDUCED
-    pos = ca.mtimes(rot[0:2, 0:2], qs_reduced[R.position]) + centre
-    quat = quat_multiply(ca.vertcat(ca.cos(phase / 2), 0, 0, ca.sin(phase / 2)), qs_reduced[R.quaternion])
-    return ca.vertcat(pos, quat, ca.mtimes(rot, qs_reduced[R.omega]), qs_reduced[R.theta_dot])
-
-
-@dataclass
-class Plan:
-    """A solved trajectory (SI units): node times, reduced states and the motor-acceleration profile.
-
-    Attributes
-    ----------
-    t : numpy.ndarray (N+1,)
-        Node times, s (from 0).
-    z : numpy.ndarray (10, N+1)
-        Reduced states at the nodes.
-    u : numpy.ndarray (N,)
-        Motor acceleration on each interval, rad/s^2.
-    T : float
-        Duration, s.
-    status : str
-        Solver status.
-    success : bool
-    iterations : int
-    solve_time : float
-        Wall-clock time of the solve, s.
-    extra : dict
-        Problem-specific results (for example the orbit phase).
-    """
-
-    t: np.ndarray
-    z: np.ndarray
-    u: np.ndarray
-    T: float
-    status: str
-    success: bool
-    iterations: int
-    solve_time: float
-    extra: dict = field(default_factory=dict)
-
-    def accel(self, t: float) -> float:
-        """Planned motor acceleration at time ``t`` (s), rad/s^2; 0 after the end."""
-        if t >= self.T or t < 0:
-            return 0.0
-        # a time on a node belongs to the interval it starts (guard against 0.3 / 0.1 = 2.999...)
-        return float(self.u[min(int(math.floor(t / (self.T / len(self.u)) + 1e-9)), len(self.u) - 1)])
-
-    def state(self, t) -> np.ndarray:
-        """Planned reduced state at time(s) ``t`` (s), linear between nodes (quaternions renormalised)."""
-        t = np.clip(np.asarray(t, float), 0.0, self.T)
-        out = np.array([np.interp(t, self.t, row) for row in self.z])
-        q = out[REDUCED.quaternion]
-        out[REDUCED.quaternion] = q / np.linalg.norm(q, axis=0)
-        return out
-
-    def resample(self, N: int) -> "Plan":
-        """The same trajectory on ``N`` equal intervals (states interpolated, accelerations at interval midpoints)."""
-        return self.tail(0.0, N)
-
-    def tail(self, t0: float, N: int, duration: float | None = None) -> "Plan":
-        """The rest of the trajectory from time ``t0`` (s) on (at most ``duration`` s of it), on ``N`` equal
-        intervals, its time from 0."""
-        t0 = min(max(float(t0), 0.0), self.T)
-        T = max(self.T - t0 if duration is None else min(float(duration), self.T - t0), 1e-3)
-        t = np.linspace(0.0, T, N + 1)
-        u = np.array([self.accel(t0 + tm) for tm in 0.5 * (t[1:] + t[:-1])])
-        return Plan(t, self.state(t0 + t), u, T, self.status, self.success, self.iterations, self.solve_time,
-                    dict(self.extra))
-
-    @property
-    def driving_speed(self) -> np.ndarray:
-        """Planned driving speed at the nodes, rad/s."""
-        return self.z[REDUCED.theta_dot]
-
-    def to_dict(self) -> dict:
-        """Summary for JSON."""
-        return {"T": self.T, "status": self.status, "success": self.success, "iterations": self.iterations,
-                "solve_time": self.solve_time, "end": self.z[:2, -1].tolist(), **self.extra}
 
 
 class _MinTimeOCP:
@@ -457,130 +355,6 @@ def _reduced(state) -> np.ndarray:
     if state.shape != (NZ,):
         raise ValueError(f"start state has {state.size} entries; expected 11 (full) or 10 (reduced)")
     return state
-
-
-def _from_simulation(run, N: int, T: float) -> tuple[np.ndarray, np.ndarray]:
-    """Node states and interval accelerations of a simulated run, resampled on ``N`` intervals over ``T``."""
-    t_nodes = np.linspace(0.0, T, N + 1)
-    idx = np.minimum(np.round(t_nodes / run.dt).astype(int), run.x.shape[1] - 1)
-    z = np.array([to_reduced(run.x[:, k]) for k in idx]).T
-    u = np.array([run.applied_accel[min(k, run.applied_accel.size - 1)] for k in idx[:-1]])
-    return z, u
-
-
-GUESS_ACCELS = (2.0, 4.0, 8.0)  # ramp rates of the quasi-stable guesses' speed profiles, rad/s^2
-
-
-def _trapezoids(accels=GUESS_ACCELS, speeds=np.linspace(1.0, 9.0, 17), holds=np.linspace(0.0, 12.0, 25)):
-    for a in accels:
-        for w in speeds:
-            for sign in (1.0, -1.0):
-                for hold in holds:
-                    yield a, sign * w, hold
-
-
-def _quasi_rest_points(s0, heading, radius_map, dt=0.05, accels=GUESS_ACCELS):
-    """Quasi-stable end points of every trapezoidal speed profile (ramping at ``accels``, rad/s^2), vectorised
-    over profiles."""
-    cands = np.array(list(_trapezoids(tuple(accels))))
-    acc, wc, hold = cands.T
-    ramp = np.abs(wc) / acc
-    total = 2 * ramp + hold
-    t = np.arange(0.0, total.max() + dt, dt)[None, :]
-    speed = np.clip(np.minimum(acc[:, None] * t, (acc * (total))[:, None] - acc[:, None] * t), 0.0, None)
-    speed = np.minimum(speed, np.abs(wc)[:, None])
-    rate = np.sign(wc)[:, None] * radius_map.rate(speed)
-    vel = rate * radius_map.radius(speed)
-    angle = heading + np.cumsum(rate, axis=1) * dt
-    pos = s0[:, None] + np.stack([np.sum(-vel * np.sin(angle), axis=1), np.sum(vel * np.cos(angle), axis=1)]) * dt
-    return cands, pos, total
-
-
-def quasi_stable_guess(z0, goal, params: RollbotParams, N: int, keep: int = 6, accels=GUESS_ACCELS) -> Plan:
-    """An initial guess for a rest-to-rest plan, from the quasi-stable theory (see module doc).
-
-    Parameters
-    ----------
-    z0 : array_like (10,)
-        Reduced start state (at rest or nearly).
-    goal : array_like (2,)
-        Goal point, m.
-    params : RollbotParams
-    N : int
-        Intervals of the plan.
-    keep : int
-        How many of the best quasi-stable candidates to simulate in the full plant.
-    accels : sequence of float
-        Ramp rates of the trapezoidal driving-speed profiles tried, rad/s^2 (``GUESS_ACCELS``).
-    """
-    return quasi_stable_guesses(z0, goal, params, N, 1, keep, accels)[0]
-
-
-def quasi_stable_guesses(z0, goal, params: RollbotParams, N: int, count: int, keep: int = 6,
-                         accels=GUESS_ACCELS, quick: float | None = None) -> list[Plan]:
-    """The ``count`` best guesses of ``quasi_stable_guess``, best first: starts for a multi-start solve
-    (a minimum-time leg has local optima, and the guess decides which one the solver finds).
-
-    ``quick`` (m), if given and ``count`` is at least 2: the last of the guesses is instead the shortest
-    of the other simulated ones whose score (miss plus 0.01 m per second of profile) is within ``quick``
-    of the best's.  Ranked by score, the best few are often long profiles that revolve on the way, from
-    which the solver finds slow local optima; a quick profile that misses by more often converges to a
-    much faster leg (``benchmarks/bench_robustness_result.md`` item 18).
-    """
-    from rollbot_oc.simulate import heading as heading_of
-
-    level = params.replace(slope=0.0)
-    radius_map = _radius_map(level)
-    x0 = from_reduced(z0)
-    goal = np.asarray(goal, float)
-    cands, ends, totals = _quasi_rest_points(np.asarray(z0[:2], float), float(heading_of(x0)), radius_map,
-                                             accels=accels)
-    score = np.linalg.norm(ends - goal[:, None], axis=0) + 0.01 * totals
-    runs = []
-    for i in np.argsort(score)[:max(keep, count)]:
-        a, w, hold = cands[i]
-        ramp = abs(w) / a
-        total = 2 * ramp + hold
-
-        def profile(t, a=a, w=w, total=total):
-            return math.copysign(max(0.0, min(a * t, abs(w), a * (total - t))), w)
-
-        run = simulate(x0, total + 1.0, params=level, speed=profile, stop_on_event=False)
-        runs.append((float(norm(run.position[:, -1] - goal)) + 0.01 * total, run, total + 1.0))
-    runs.sort(key=lambda r: r[0])
-    if quick is not None and count >= 2:
-        others = [r for r in runs[count - 1:] if r[0] <= runs[0][0] + quick]
-        if others:
-            runs[count - 1] = min(others, key=lambda r: r[2])
-    plans = []
-    for miss, run, T in runs[:count]:
-        z, u = _from_simulation(run, N, T)
-        plans.append(Plan(np.linspace(0.0, T, N + 1), z, u, T, "guess", True, 0, 0.0, {"miss": miss}))
-    return plans
-
-
-@functools.lru_cache(maxsize=8)
-def _radius_map(params: RollbotParams) -> RadiusMap:
-    return RadiusMap(params)
-
-
-def orbit_phase(position, centre, qs_reduced) -> float:
-    """The phase (rad) of the orbit point about ``centre`` (m) nearest ``position`` (m), for the quasi-stable
-    state ``qs_reduced`` (10,) that ``orbit_state`` turns."""
-    rel = np.asarray(position, float) - np.asarray(centre, float)
-    return math.atan2(rel[1], rel[0]) - math.atan2(qs_reduced[1], qs_reduced[0])
-
-
-def orbit_guess(z0, centre, ocp: OrbitEntry, hold: float = 1.0) -> tuple[Plan, float]:
-    """Guess for an orbit entry: ramp the driving speed up to the orbit's speed (4 rad/s^2), hold it ``hold``
-    seconds (a simulation of the model), and the orbit phase nearest where that ends (rad)."""
-    level = ocp.params.replace(slope=0.0)
-    accel = 4.0
-    T = ocp.omega0 / accel + hold
-    run = simulate(from_reduced(z0), T, params=level, speed=lambda t: min(ocp.omega0, accel * t), stop_on_event=False)
-    z, u = _from_simulation(run, ocp.settings.N, T)
-    plan = Plan(np.linspace(0.0, T, ocp.settings.N + 1), z, u, T, "guess", True, 0, 0.0)
-    return plan, orbit_phase(run.position[:, -1], centre, ocp.qs_reduced)
 
 
 def plan_waypoints(start, stops, params: RollbotParams | None = None, settings: OCPSettings | None = None,

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rollbot_oc.control.nmpc.loop import _rest_to_rest
+from rollbot_oc.control.nmpc.supervisors.stops import _rest_to_rest
 from rollbot_oc.control.nmpc.reference import Reference
 from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.ocp import SolveFailed
@@ -109,14 +109,14 @@ def plan_reference(stops, x0, params: RollbotParams, settings: NMPCSettings | No
     s = settings or EMBEDDED_SETTINGS
     if not len(stops):
         raise ConfigError("the exported controller follows a course of stops; this mission has none")
-    planner = _rest_to_rest(params.replace(slope=0.0), s.plan, tuple(s.constraints))
+    planner = _rest_to_rest(params.replace(slope=0.0), s.planner.legs, tuple(s.limits.constraints))
     z = to_reduced(x0)
-    h = s.h
+    h = s.horizon.h
     plans, legs = [], []
     for i, stop in enumerate(stops):
         try:
-            plan = planner.fastest(z, np.asarray(stop, float), s.plan_starts, tilt=np.zeros(2), resumes=s.plan_resumes,
-                                   quick=s.plan_quick)
+            plan = planner.fastest(z, np.asarray(stop, float), s.planner.starts, tilt=np.zeros(2), resumes=s.planner.resumes,
+                                   quick=s.planner.quick)
         except SolveFailed as exc:
             raise ConfigError(f"leg {i + 1} to stop {list(map(float, stop))} cannot be planned: {exc.status}") \
                 from None

@@ -12,7 +12,8 @@
   from the current solve instant, and the next leg from its start; each the reduced states (10, N+1) by
   column, the motor accelerations (N,), the leg's stop (2), its duration (s) and 1 if it is the last leg.
 
-What it does, in order, as the NMPC's loop (``control.nmpc.loop``) does for a course of stops:
+What it does, in order, as the NMPC (``control.nmpc``: its step and its stops supervisor) does for a course
+of stops:
 
 1. the tilt estimator's update (``control.nmpc.estimation.TiltEstimator.update``, the same filter written
    symbolically with the same one-step model and noise settings, on the tilt alone and from the measured
@@ -23,7 +24,7 @@ What it does, in order, as the NMPC's loop (``control.nmpc.loop``) does for a co
    instant after the leg's planned end, once the stop is reached, the next leg starts (cold: from its
    reference, as the NMPC's legs do), or after the last stop the run ends ``finish_hold`` later; past a
    leg's end within the stop's tolerance (at least ``hold_radius``) the robot is held where it arrived with
-   the hold weights (``NMPC._settle``);
+   the hold weights (``StopsSupervisor._settle``);
 4. at a solve instant (every ``h``; or when there is no plan): one real-time iteration of the NMPC's
    tracking problem (``control.nmpc.tracking.tracking_problem``, the robot's limits of
    ``ocp.constraints.robot_limits`` in it): the structured linearisation and the QP by ``qrqp``, solved
@@ -46,7 +47,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -61,16 +62,10 @@ from rollbot_oc.rotations import quat_multiply
 
 __all__ = ["EMBEDDED_SETTINGS", "STATUS", "Memory", "StepFunction", "control_step", "HISTORY"]
 
-# The robot's processor has a tenth of a desktop core's speed: the exported step keeps the NMPC's weights, limits
-# and fallbacks over the same 3 s horizon with 25 intervals of 0.12 s and one integration step each (the Python
-# NMPC's 60 of 0.05 s with two steps each follow its plans closer at several times the cost per solve and 2.4
-# times the solves; ``benchmarks/bench_export_c_result.txt`` measures this one against 30 of 0.1 s with two). Its
-# filter learns the tilt alone, from the measured attitude (fewer states to carry on the robot). It weighs
-# the driving speed and the shell's motion past a leg's end (``TrackingWeights.arrival_speed`` and
-# ``arrival_omega``) as the NMPC does: measured 2026-12-03 (``benchmarks/bench_export_c_result.txt``), the N-shape's
-# seeds 0 to 3 took 83.3 s in all with both, 92.5 s with the shell's alone, 116.8 s without either and 124.4 s with
-# the motor's alone.
-EMBEDDED_SETTINGS = NMPCSettings(N=25, h=0.12, substeps=1, max_failures=3, learn=(), attitude_gain=1.0)
+# The exported step's settings: the NMPC's weights, limits and fallbacks over the same 3 s horizon with 25
+# intervals of 0.12 s and one integration step each, a filter on the tilt alone from the measured attitude
+# (``NMPCSettings.embedded``; ``benchmarks/bench_export_c_result.txt`` compares other grids).
+EMBEDDED_SETTINGS = NMPCSettings.embedded()
 
 HISTORY = 4  # commands remembered: delay compensation over up to HISTORY - 1 periods of latency
 STATUS = {0: "solved", 1: "between solves", 2: "QP failed: previous plan", 3: "brake", 4: "done"}
@@ -193,20 +188,20 @@ class _RTI:
     def __init__(self, params: RollbotParams, settings: NMPCSettings):
         s = settings
         # the NMPC's own tracking solver: its parameters of a solve, guess, split and shift (placements)
-        self.solver = solver = RTISolver(params, replace(s, compiled=False), s.waypoint_weights)
-        ocp = tracking_problem(s.N, s.h, s.substeps, s.torque_margin, s.normal_margin, s.friction_margin,
-                               s.speed_margin, constraints=tuple(s.constraints))
+        self.solver = solver = RTISolver(params, s.replace(horizon={"compiled": False}), s.weights.legs)
+        ocp = tracking_problem(s.horizon.N, s.horizon.h, s.horizon.substeps, s.limits.torque_margin, s.limits.normal_margin, s.limits.friction_margin,
+                               s.limits.speed_margin, constraints=tuple(s.limits.constraints))
         self.route = ocp.solver("rti", qp_solver="qrqp", compiled=False)
         self.tr = tr = self.route.transcription
         self.n, self.m = tr.w.numel(), tr.g.numel()
         self.p_nominal = params.vector()
-        self.N = s.N
-        dummy = np.zeros((NZ, s.N + 1))
-        track = solver._parameters(dummy[:, 0], dummy, np.zeros(s.N), self.p_nominal, None, None)
-        arrival = solver._parameters(dummy[:, 0], dummy, np.zeros(s.N), self.p_nominal, None,
-                                     s.waypoint_weights.diagonal(s.N, np.ones(s.N + 1, bool)))
-        hold = solver._parameters(dummy[:, 0], dummy, np.zeros(s.N), self.p_nominal, None,
-                                  s.hold_weights.diagonal(s.N))
+        self.N = s.horizon.N
+        dummy = np.zeros((NZ, s.horizon.N + 1))
+        track = solver._parameters(dummy[:, 0], dummy, np.zeros(s.horizon.N), self.p_nominal, None, None)
+        arrival = solver._parameters(dummy[:, 0], dummy, np.zeros(s.horizon.N), self.p_nominal, None,
+                                     s.weights.legs.diagonal(s.horizon.N, np.ones(s.horizon.N + 1, bool)))
+        hold = solver._parameters(dummy[:, 0], dummy, np.zeros(s.horizon.N), self.p_nominal, None,
+                                  s.weights.hold.diagonal(s.horizon.N))
         self.weights = {name: (track[name], arrival[name], hold[name]) for name in ("state_weight", "accel_weight",
                                                                                     "mission_weight")}
         self.mission_values = solver._mission_values
@@ -288,17 +283,17 @@ def control_step(params: RollbotParams, settings: NMPCSettings | None = None, dt
 
 @functools.lru_cache(maxsize=4)
 def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopRule) -> StepFunction:
-    every = max(1, int(round(s.h / dt)))
-    if abs(every * dt - s.h) > 1e-9:
-        raise ValueError(f"NMPC h = {s.h} s must be a whole number of control periods dt = {dt} s")
-    if s.learn or s.attitude_gain != 1.0:
-        raise ValueError(f"exported step: learn = {list(s.learn)!r} and attitude_gain = {s.attitude_gain!r}; its "
+    every = max(1, int(round(s.horizon.h / dt)))
+    if abs(every * dt - s.horizon.h) > 1e-9:
+        raise ValueError(f"NMPC h = {s.horizon.h} s must be a whole number of control periods dt = {dt} s")
+    if s.filter.learn or s.filter.attitude_gain != 1.0:
+        raise ValueError(f"exported step: learn = {list(s.filter.learn)!r} and attitude_gain = {s.filter.attitude_gain!r}; its "
                          f"filter learns the tilt alone from the measured attitude: valid are [] and 1")
-    estimator = TiltEstimator(params, dt, s.tilt_process_noise, s.gyro_sigma, s.tilt_model_error, attitude_gain=1.0)
+    estimator = TiltEstimator(params, dt, s.filter.process_noise, s.filter.gyro_sigma, s.filter.model_error, attitude_gain=1.0)
     update = _estimator_update(estimator)
     predict = estimator.step.fun
     rti = _RTI(params, s)
-    N, n, m = s.N, rti.n, rti.m
+    N, n, m = s.horizon.N, rti.n, rti.m
     memory = Memory([("k", 1), ("segment", 1), ("segment_k", 1), ("prev_seen", 1), ("prev_z", NZ), ("tilt", 2),
                      ("P", 4), ("hist", HISTORY), ("w", n), ("lam_w", n), ("lam_g", m), ("warm", 1), ("U", N),
                      ("k_solved", 1), ("current", 1), ("failures", 1), ("ramp_t0", 1), ("ramp_speed", 1),
@@ -319,7 +314,7 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     tilt, P = part("tilt"), ca.reshape(part("P"), 2, 2)
     u_prev = _select(hist, k - 1 - prev_seen)  # the command issued at the previous measurement's step
     tilt1, P1 = update(tilt, P, part("prev_z"), u_prev, z_meas)
-    follows = ca.logic_and(seen == prev_seen + 1, 1 if s.estimate_tilt else 0)
+    follows = ca.logic_and(seen == prev_seen + 1, 1 if s.filter.enabled else 0)
     tilt, P = ca.if_else(follows, tilt1, tilt), ca.if_else(follows, P1, P)
     p = ca.MX(ca.DM(params.vector()))
     p[TILT] = tilt
@@ -344,7 +339,7 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     switch = ca.logic_and(leave, ca.logic_not(last))
     finished_at = ca.if_else(ca.logic_and(ca.logic_and(leave, last), part("finished_at") < 0), t_now,
                              part("finished_at"))
-    done = ca.logic_and(finished_at >= 0, t_now >= finished_at + s.finish_hold - 1e-9)
+    done = ca.logic_and(finished_at >= 0, t_now >= finished_at + s.arrival.finish_hold - 1e-9)
     segment = part("segment") + switch
     segment_k = ca.if_else(switch, k, part("segment_k"))
     since = ca.if_else(switch, -1, since)
@@ -354,10 +349,10 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     local = (k - segment_k) * dt
     Zr = ca.reshape(follow[:NZ * (N + 1)], NZ, N + 1)
     Ur = follow[NZ * (N + 1):NZ * (N + 1) + N].T
-    # past the leg's end near its stop: hold where the robot arrived (``NMPC._settle``), gently; near is within
+    # past the leg's end near its stop: hold where the robot arrived (``StopsSupervisor._settle``), gently; near is within
     # the stop's tolerance (the NMPC's smaller ``hold_radius`` leaves a robot further off to a new leg, which
     # this controller cannot plan: chasing the last centimetres at rest keeps its motor from settling)
-    hold_radius = max(s.hold_radius, rule.tolerance)
+    hold_radius = max(s.arrival.hold_radius, rule.tolerance)
     ended = local >= T - 1e-9
     was = ca.logic_and(part("anchored"), ca.logic_not(switch))
     anchored = ca.logic_and(ended, ca.logic_or(was, ca.norm_2(z[REDUCED.position] - stop) <= hold_radius))
@@ -370,7 +365,7 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     warm_in = ca.if_else(switch, 0, part("warm"))  # a new leg starts from its reference (as the NMPC's)
     solve = ca.logic_and(ca.logic_and(ca.logic_or(instant, current_in == 0), ca.logic_not(braking)),
                          ca.logic_not(done))
-    past_end = local + ca.DM(s.h * np.arange(N + 1)).T > T  # the horizon's nodes past the leg's end
+    past_end = local + ca.DM(s.horizon.h * np.arange(N + 1)).T > T  # the horizon's nodes past the leg's end
     rti_args = [part("w"), part("lam_w"), part("lam_g"), warm_in, z, Zr, Ur, ca.repmat(anchored, 1, N + 1), past_end,
                 tilt]
     rti_fun = rti.function()
@@ -380,19 +375,19 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     solved = ca.logic_and(solve, ok)
     failed = ca.logic_and(solve, ca.logic_not(ok))
     failures = ca.if_else(solved, 0, ca.if_else(failed, part("failures") + 1, part("failures")))
-    keep = ca.logic_and(current_in, failures < s.max_failures)  # a failed solve: the previous plan
+    keep = ca.logic_and(current_in, failures < s.recovery.max_failures)  # a failed solve: the previous plan
     brake = ca.logic_and(failed, ca.logic_not(keep))
     speed0 = z[REDUCED.theta_dot]
     ramp_t0 = ca.if_else(brake, t_now, part("ramp_t0"))
     ramp_speed = ca.if_else(brake, speed0, part("ramp_speed"))
-    brake_until = ca.if_else(brake, t_now + ca.fabs(speed0) / s.brake_accel + s.h, part("brake_until"))
+    brake_until = ca.if_else(brake, t_now + ca.fabs(speed0) / s.recovery.brake_accel + s.horizon.h, part("brake_until"))
     current = ca.if_else(solved, 1, ca.if_else(brake, 0, current_in))
     warm = ca.if_else(solved, 1, ca.if_else(brake, 0, warm_in))
     U = ca.if_else(solved, U1, part("U"))
     k_solved = ca.if_else(solved, k, part("k_solved"))
     failures = ca.if_else(brake, 0, failures)
     # 5. the command: the plan's, or the brake's speed ramp; within the motor's limits
-    ramp = ca.sign(ramp_speed) * ca.fmax(0, ca.fabs(ramp_speed) - s.brake_accel * (t_now - ramp_t0))
+    ramp = ca.sign(ramp_speed) * ca.fmax(0, ca.fabs(ramp_speed) - s.recovery.brake_accel * (t_now - ramp_t0))
     ramp_accel = ca.fmin(ca.fmax((ramp - z[REDUCED.theta_dot]) / dt, -P_view.max_accel), P_view.max_accel)
     braking_now = t_now < brake_until
     planned = _select(U, ca.fmin(ca.floor((k - k_solved) / every), N - 1))
@@ -419,4 +414,4 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     initial[memory["tilt"]] = estimator.p[TILT]
     estimator.reset()
     initial[memory["P"]] = estimator.P.ravel(order="F")
-    return StepFunction(fun, memory, initial, N, every, dt, s.h)
+    return StepFunction(fun, memory, initial, N, every, dt, s.horizon.h)

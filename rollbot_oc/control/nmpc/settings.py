@@ -1,21 +1,40 @@
-"""Settings of the NMPC: its horizon, tracking weights, limits, fallbacks and planning (SI units)."""
+"""Settings of the NMPC, nested by concern, frozen, every field validated (SI units).
+
+``NMPCSettings`` holds one group per concern: ``horizon`` (the tracking problem's grid and solver),
+``weights`` (what the tracking cost weighs in each mode), ``limits`` (the share of the robot's limits the
+feedback may use), ``filter`` (the tilt and model filter), ``arrival`` (holding at a stop), ``recovery``
+(fallbacks and getting back onto a plan), ``planner`` (legs and gate plans computed as the robot moves),
+``entry`` (a circle's entry onto its orbit) and ``timing`` (the compute-time model).  A group may be given
+as a dict of the fields it changes::
+
+    NMPCSettings(horizon={"N": 30, "h": 0.1})
+    NMPCSettings().replace(recovery={"max_failures": 3})
+
+Every field is checked when its group is built (``rollbot_oc.checked``): a value out of range is a
+one-line ``ConfigError`` naming the field, its value and the valid range.
+"""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
+from rollbot_oc.control.nmpc.estimation import LEARNABLE
 from rollbot_oc.control.ocp import OCPSettings
 from rollbot_oc.dynamics import REDUCED
+from rollbot_oc.checked import Checked, choice, flag, functions, names, number, numbers, out_of_range, typed
+from rollbot_oc.errors import ConfigError
 
-__all__ = ["TrackingWeights", "NMPCSettings"]
+__all__ = ["TrackingWeights", "Horizon", "Weights", "Limits", "FilterSettings", "Arrival", "Recovery",
+           "PlannerSettings", "EntrySettings", "Timing", "NMPCSettings"]
 
 
+# -- the tracking cost's weights ---------------------------------------------------------------------------
 @dataclass(frozen=True)
-class TrackingWeights:
-    """Weights of the NMPC's least-squares tracking cost.
+class TrackingWeights(Checked):
+    """Weights of the NMPC's least-squares tracking cost (each >= 0).
 
     Attributes
     ----------
@@ -30,41 +49,32 @@ class TrackingWeights:
     accel : float
         Motor-acceleration deviation, s^4/rad^4.
     radial : float
-        Circles: distance from the target circle, 1/m^2 (0 for waypoints).
+        Circles: distance from the target circle, 1/m^2 (0 for stops).
     terminal : float
         Factor on the state weights at the end of the horizon.
     arrival_speed : float
-        Stops: driving-speed weight at the horizon nodes past the end of the
-        leg, s^2/rad^2 (``speed`` if that is larger; 0: ``speed`` there too).
-        With it the NMPC plans the last braking so that the motor stands still
-        on arrival, instead of overshooting the plan's zero speed by a fraction
-        of an interval: a motor that swings back rocks the shell, and the rest
-        test waits.
+        Stops: driving-speed weight at the horizon nodes past the end of the leg, s^2/rad^2 (``speed`` if
+        that is larger): the motor stands still on arrival instead of swinging back and rocking the shell.
     arrival_omega : float
-        Stops: shell angular-velocity weight at the same nodes, s^2/rad^2
-        (``omega`` if that is larger; 0: ``omega`` there too).  With it the
-        NMPC plans the approach so that the shell, too, arrives still: a robot
-        that arrives swaying sideways cannot damp that sway at rest (the mode
-        is uncontrollable there, ``tests/test_stability.py``) and waits for it
-        to die out.
+        Stops: shell angular-velocity weight at those nodes, s^2/rad^2 (``omega`` if that is larger): the
+        shell arrives still, since a sideways sway at rest is uncontrollable (``tests/test_stability.py``).
     """
 
-    position: float = 400.0
-    attitude: float = 20.0
-    omega: float = 0.2
-    speed: float = 0.02
-    accel: float = 0.02
-    radial: float = 0.0
-    terminal: float = 5.0
-    arrival_speed: float = 0.0
-    arrival_omega: float = 0.0
+    owner, group = "NMPC", "weights"
+    position: float = number(400.0, 0.0)
+    attitude: float = number(20.0, 0.0)
+    omega: float = number(0.2, 0.0)
+    speed: float = number(0.02, 0.0)
+    accel: float = number(0.02, 0.0, open_low=True)
+    radial: float = number(0.0, 0.0)
+    terminal: float = number(5.0, 0.0)
+    arrival_speed: float = number(0.0, 0.0)
+    arrival_omega: float = number(0.0, 0.0)
 
     @classmethod
     def for_waypoints(cls) -> "TrackingWeights":
-        """Stops: a firm hold on position, most of all at the end of the horizon (measured: it keeps
-        every stop within 3.5 cm with the plant's masses and damping 10 % off the model), and the motor
-        and the shell still on arrival (``arrival_speed``, ``arrival_omega``;
-        ``benchmarks/bench_robustness_result.md`` items 9 and 10)."""
+        """Stops: a firm hold on position, most of all at the end of the horizon, and the motor and the
+        shell still on arrival."""
         return cls(position=1500.0, terminal=20.0, omega=40.0, arrival_speed=2000.0, arrival_omega=400.0)
 
     @classmethod
@@ -76,8 +86,8 @@ class TrackingWeights:
     @classmethod
     def for_braking(cls) -> "TrackingWeights":
         """Recovery: bring the robot to rest wherever that happens (the motion weighted, position and attitude
-        only a little, to keep the QP's Hessian regular; the motor's acceleration as at a stop: with less, the
-        brake of a heavy pendulum chatters between the motor's limits)."""
+        only a little, to keep the QP's Hessian regular; the motor's acceleration as at a stop, so that the
+        brake of a heavy pendulum does not chatter between the motor's limits)."""
         return cls(position=1.0, attitude=0.1, omega=40.0, speed=1.0, accel=0.5, terminal=20.0)
 
     @classmethod
@@ -98,16 +108,14 @@ class TrackingWeights:
         N : int
             Intervals of the horizon.
         ended : array_like (N+1,) of bool, optional
-            The nodes past the end of a leg: their driving speed weighs
-            ``arrival_speed`` (or ``speed`` if that is larger), their shell
-            angular velocity ``arrival_omega`` (or ``omega``).
+            The nodes past the end of a leg: their driving speed weighs ``arrival_speed`` (or ``speed`` if
+            that is larger), their shell angular velocity ``arrival_omega`` (or ``omega``).
 
         Returns
         -------
         numpy.ndarray (10 (N+1) + N,)
-            The state weights node by node (each in the units of its field),
-            the terminal factor on the last node, then the N acceleration
-            weights (``accel``).
+            The state weights node by node (each in the units of its field), the terminal factor on the
+            last node, then the N acceleration weights (``accel``).
         """
         wz = np.array([self.position] * 2 + [self.attitude] * 4 + [self.omega] * 3 + [self.speed])
         weights = np.tile(wz, (N + 1, 1))
@@ -119,346 +127,374 @@ class TrackingWeights:
         return np.concatenate([weights.ravel(), np.full(N, self.accel)])
 
 
+# -- the groups ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class NMPCSettings:
-    """Horizon, weights, limits and fallbacks of the NMPC (SI units).
+class Horizon(Checked):
+    """The tracking problem's grid and how it is solved.
 
     Attributes
     ----------
     N : int
-        Shooting intervals of the horizon.
+        Shooting intervals of the horizon, in [2, 400].
     h : float
-        Interval length and replanning period, s.  Short enough that the
-        commands follow the bang-bang switches of a minimum-time plan's motor
-        acceleration: a robot that brakes late arrives swaying sideways, and
-        its motor cannot damp that sway at rest (the mode is uncontrollable
-        there, ``tests/test_stability.py``), so it fails the rest test for
-        seconds (``benchmarks/bench_nmpc_result.txt`` compares 0.1 s).
+        Interval length and replanning period, s, in (0, 0.5]; a whole number of control periods.
     substeps : int
-        RK4 steps per interval in the prediction.
+        RK4 steps per interval in the prediction, in [1, 10].
     solver : {"rti", "ipopt"}
-        ``"rti"`` (default, chosen by measurement: ``benchmarks/bench_nmpc.py``)
-        or ``"ipopt"`` (converged every period; too slow for 10 Hz replanning
-        on a small machine: its late solves fall back).  Both are routes of
-        the one tracking problem (``tracking.tracking_problem``).
-    waypoint_weights, hold_weights, circle_weights : TrackingWeights
-        Tracking weights on the way to a stop, holding at it once its leg has
-        ended, and on circles (defaults in ``TrackingWeights.for_waypoints``,
-        ``for_holding`` and ``for_circles``).
+        One real-time iteration per period (``"rti"``), or IPOPT to convergence (``"ipopt"``).
+    compiled : bool or None
+        RTI: evaluate the linearisation as compiled C (``rollbot_oc.codegen``); None: when a compiler exists.
+    """
+
+    owner, group = "NMPC", "horizon"
+    N: int = number(60, 2, 400, integer=True)
+    h: float = number(0.05, 0.0, 0.5, open_low=True)
+    substeps: int = number(1, 1, 10, integer=True)
+    solver: str = choice("rti", "rti", "ipopt")
+    compiled: bool | None = choice(None, None, True, False)
+
+
+@dataclass(frozen=True)
+class Weights(Checked):
+    """The tracking cost's weights in each mode.
+
+    Attributes
+    ----------
+    legs : TrackingWeights
+        On the way to a stop (``TrackingWeights.for_waypoints``).
+    hold : TrackingWeights
+        Holding at a stop once its leg has ended (``for_holding``).
+    brake : TrackingWeights
+        Bringing the robot to rest where it is (``for_braking``).
+    circle : TrackingWeights
+        On circles (``for_circles``).
+    gate : float
+        Gates: weight added on the position at the two horizon nodes around each planned passage, 1/m^2.
+    """
+
+    owner, group = "NMPC", "weights"
+    legs: TrackingWeights = typed(TrackingWeights.for_waypoints, TrackingWeights)
+    hold: TrackingWeights = typed(TrackingWeights.for_holding, TrackingWeights)
+    brake: TrackingWeights = typed(TrackingWeights.for_braking, TrackingWeights)
+    circle: TrackingWeights = typed(TrackingWeights.for_circles, TrackingWeights)
+    gate: float = number(2e4, 0.0)
+
+
+@dataclass(frozen=True)
+class Limits(Checked):
+    """The share of the robot's limits the tracking NMPC may use (fractions in (0, 1]).
+
+    Attributes
+    ----------
     torque_margin : float
-        Fraction of the torque limit the tracking NMPC may use (more than the
-        plans it tracks, ``plan.torque_margin``: the rest is the feedback's).
+        Of the motor's torque limit (more than the plans it tracks use: the rest is the feedback's).
     speed_margin : float
-        Fraction of the driving-speed limit the tracking NMPC may use.
-    constraints : tuple of callables
-        More path constraints of the NMPC, each a function of an ``OCP``
-        returning a ``Constraint`` (``rollbot_oc.ocp.constraints``, or
-        ``bounded(lower, expression, upper, name)`` of the stage symbols) or a
-        relation, e.g. ``lambda ocp: position_box(ocp, (-0.1, -0.1), (1.3,
-        1.3))``: one line, and the legs it plans, a circle's entry and the
-        tracking problem all keep it (like the motor and contact limits, the
-        tracking QP drops it when no command can satisfy it).
+        Of the driving-speed limit.
     normal_margin : float
-        Least normal force as a fraction of the weight.
+        Least normal force, as a fraction of the weight, in [0, 1).
     friction_margin : float
-        Largest tangential force as a fraction of ``mu`` times the normal force.
-    max_failures : int
-        Consecutive failed or late solves before the PID takes over.
-    fallback : {"brake", "pid"}
-        What takes over after ``max_failures`` failed solves on a course of
-        stops: ``"brake"`` ramps the motor to a stop (the robot comes to rest
-        as a ball with a hanging mass, then gets a new leg from there),
-        ``"pid"`` the paper's PID towards the current stop for ``pid_time``.
-        Circles always fall back to the PID.
-    pid_time : float
-        How long the PID keeps control after taking over, s.
-    estimate_tilt : bool
+        Largest tangential force, as a fraction of ``mu`` times the normal force.
+    constraints : tuple of callables
+        More path constraints, each a function of an ``OCP`` returning a ``Constraint``
+        (``rollbot_oc.ocp.constraints``), e.g. ``lambda ocp: position_box(ocp, (-0.1, -0.1), (1.3, 1.3))``:
+        the legs, a circle's entry and the tracking problem all keep it (the tracking QP drops it, as the
+        motor and contact limits, when no command can satisfy it).
+    """
+
+    owner, group = "NMPC", "limits"
+    torque_margin: float = number(0.95, 0.0, 1.0, open_low=True)
+    speed_margin: float = number(0.98, 0.0, 1.0, open_low=True)
+    normal_margin: float = number(0.1, 0.0, 1.0, open_high=True)
+    friction_margin: float = number(0.95, 0.0, 1.0, open_low=True)
+    constraints: tuple = functions(())
+
+
+@dataclass(frozen=True)
+class FilterSettings(Checked):
+    """The Kalman filter on the floor's tilt and the model's scale factors (``TiltEstimator``).
+
+    Attributes
+    ----------
+    enabled : bool
         Estimate the floor tilt (offset-free); off gives the nominal model.
     learn : tuple of str
-        Parameters (of ``estimation.LEARNABLE``) whose scale factors the tilt filter
-        learns as the robot moves, used by every later plan and solve (with
-        ``estimate_tilt``): the shell's mass ``M``, the pendulum's ``m`` and the
-        damping ``k0`` by default; ``()`` keeps the nominal model.
+        Parameters (of ``estimation.LEARNABLE``) whose scale factors the filter learns as the robot moves.
     learn_sigma : float
-        Prior standard deviation of each learned factor (0.1: the model may be
-        10 % off).
-    tilt_process_noise : float
+        Prior standard deviation of each learned factor, in (0, 0.3].
+    process_noise : float
         Random-walk rate of the tilt estimate, 1/sqrt(s).
     gyro_sigma : float
         Assumed one-step prediction error of the angular velocity, rad/s.
-    tilt_model_error : float
-        Assumed relative error of the model's one-step change of the angular
-        velocity (``TiltEstimator.model_error``).
+    model_error : float
+        Assumed relative error of the model's one-step change of the angular velocity.
     attitude_gain : float
-        Gain of the filter's attitude (``TiltEstimator.attitude_gain``): the
-        fraction, each period, by which the attitude carried by the model moves
-        to the measured one; 1 uses the measurement alone.
-    hold_time : float
-        How long after a leg's plan ends a robot nearly at rest (see
-        ``recover_speed``) outside its stop's tolerance waits before it gets a
-        new leg to the same stop, s (it never moves on from a stop it has not
-        reached; a robot at rest that late seldom creeps into the tolerance:
-        ``benchmarks/bench_robustness_result.md`` item 11).
-    replan_distance, replan_interval : float
-        A robot pushed more than ``replan_distance`` (m) off its plan gets a
-        new leg to its stop from where it is, at most once per
-        ``replan_interval`` (s).
-    brake_weights : TrackingWeights
-        A robot pushed off its plan is first brought to rest: the NMPC tracks
-        rest where the robot is with these weights (motion only, no position;
-        ``TrackingWeights.for_braking``).  Its new leg is planned once it is at
-        rest (shell-centre speed below ``recover_speed``, m/s, driving speed
-        below ``recover_drive``, rad/s) or after ``brake_wait`` s: a leg planned
-        from rest converges, one from a tumbling robot often does not.
-    recover_speed, recover_drive, brake_wait : float
-        See ``brake_weights``.
-    brake_accel : float
-        If the braking solves fail (``max_failures`` in a row), the motor's
-        speed is ramped to zero at this rate, rad/s^2, for a moment before
-        the NMPC tries again.
-    replan_angle : float
-        A leg planned ahead is followed only if the robot's attitude at the
-        stop is within this angle of the one it was planned from (and its
-        position within ``replan_distance``); else the leg is planned from
-        where the robot is, rad.
-    swung_angle : float
-        A robot brought to rest whose pendulum frame is turned more than
-        this from its balanced rest (``dynamics.rest_attitude``: the mass
-        swung up) is held at that rest, and its leg from rest planned from
-        it; nearer, it is held where it is, rad.
-    finish_hold : float
-        After the last stop is reached, the NMPC holds the robot there this
-        long before it reports ``done`` (the run then ends), s.
-    gate_weight : float
-        Gates: the weight added on the position deviation from the plan at the
-        two horizon nodes around each planned gate passage, 1/m^2.
-    hold_radius : float
-        At the end of a leg within this distance of its stop (m), the NMPC holds
-        the robot where it arrived (damping its motion) instead of chasing the
-        last centimetres.
-    plan_handovers : tuple of float
-        A leg planned from where the robot is (the first, or a replan) starts
-        at once on the quasi-stable guess (a full-model simulation); minimum-time
-        legs are refined from where the tracking NMPC predicts the robot
-        following the guess will be each of these times later, s, one after
-        the other (a minimum-time leg has local optima, and where it starts
-        decides which one IPOPT finds); of those ready in time, the one that
-        arrives first takes over where it starts.  The
-        default, 1.2 s, is the modelled time of the planner's longest solve
-        (``plan.max_iter`` iterations of ``plan_iteration_time``): a refinement
-        from the guess's tail that converges is never late.  The fresh ones
-        (``refine_fresh``) queue behind it on the one planner, with their
-        guesses' ``plan_guess_time``, and are used only if ready in time
-        (on the N-shape the tail took 52 iterations, 0.42 s, which with the
-        guesses' 0.3 s leaves the fresh one 60 iterations of the 1.2 s).
-    ride_accels : tuple of float
-        The quasi-stable guess a leg starts on at once (the first leg, and a
-        leg whose plan from rest failed) is the best of the trapezoidal
-        driving-speed profiles that ramp at these rates, rad/s^2 (the
-        planner's own starts ramp at 2, 4 and 8).  A gentle ramp leaves the
-        robot slow and near its start when the refinement takes over: from
-        there the minimum-time legs converge, and are fast, far more often
-        than from a robot already at full speed in a poor direction
-        (``benchmarks/bench_robustness_result.md`` item 16).
-    tilt_settle : float
-        The first leg's refinement is planned this long after the start, once
-        the floor tilt estimate has settled (a plan on the level floor misses
-        a slope's pull), s.
-    plan_ahead : float
-        The next leg is planned (from the rest state the current leg ends in,
-        on the tilt estimated by then) when this fraction of the current leg
-        has gone by, so that it is ready at the stop.
-    caution, caution_floor : float
-        After each recovery (``brakes``) on a run, later legs planned from rest
-        (not the refinements of a guess, which start moving) are planned with
-        their driving-speed and acceleration limits scaled by ``caution`` once
-        more, down to ``caution_floor``: a robot that could not follow its plans
-        gets gentler ones.
-    legs_ahead : int
-        How many legs beyond the current one may be planned ahead, one after
-        the other (a single planner: each plan starts when the one before it is
-        done), each from the rest state the leg before it is planned to end in.
-    plan_starts : int
-        A leg planned ahead is solved from this many quasi-stable guesses, and
-        the fastest result is kept.
-    plan_quick : float or None
-        The last of a leg's ``plan_starts`` is the quickest quasi-stable guess
-        whose score is within this of the best's, m (``quasi_stable_guesses``'
-        ``quick``; chosen from the simulated guesses ranked after the others,
-        ``keep`` of them in all): the best few by score (the miss, plus 0.01 m
-        per second of profile) are often long profiles that revolve on the
-        way, and converge to slow legs.  None: the best by score only.
-    refine_fresh : int
-        A guess's refinement is also solved from this many fresh quasi-stable
-        guesses from the same predicted start (their ``plan_guess_time`` and
-        iterations are charged to the one planner); of all those ready in
-        time, the one that arrives first takes over (at most 5).  The
-        guess's tail alone often leads to a slow local optimum (the N-shape,
-        seed 0: 4.73 s against 3.37 s from a fresh guess).
-    plan_resumes : int
-        If none of a leg's ``plan_starts`` converges, up to this many of them
-        are solved again from where they stopped before the leg is given up
-        for a stepping stone (``RestToRest.fastest``).
-    stone_distance : float
-        A leg from rest to a stop farther than this that cannot be planned is
-        planned instead to a stepping stone this far towards the stop (a
-        shorter leg converges far more often on a robot whose revolving
-        radii are small); from the stone, the leg is planned again, m.
-    plan_iteration_time, plan_guess_time : float
-        Modelled compute time of one IPOPT iteration of a leg's plan, and of
-        the quasi-stable guesses of a leg planned ahead, s: a plan is used only
-        once that much simulated time has passed after it was started (with
-        ``realtime``, its measured wall-clock time instead).  The defaults are
-        the planner's measured times on a 2-core machine with a closed-loop run
-        on the other core (``benchmarks/bench_planner.py --busy``), rounded up
-        with room for a slower machine.
-    entry_times : tuple of float
-        Circles: durations tried, in order, for the planned entry onto the
-        orbit (least effort in that time), s; those too short for
-        ``entry_shift_speed`` are skipped.
-    entry_shift_speed : float
-        Circles: how fast an entry is taken to move the robot's revolving
-        centre, m/s.  The entry tries the durations of ``entry_times`` from the
-        shortest in which the ramp's centre can reach the orbit's at this speed
-        (one half revolution at the fastest driving speed moves the centre by
-        about twice the difference of the fastest revolving radius and the
-        orbit's: of the order of 1.5 m in 4 s).
-    entry_interval : float
-        Circles: interval of the entry's grid, s.
-    entry_handover : float
-        Circles: the robot starts at once on a ramp up to the orbit's speed;
-        the entry is planned ``tilt_settle`` s after the start, from where the
-        ramp will be this long after that, and takes over there if it is ready
-        (else it is planned again from further along), s.
-    max_solve_time : float or None
-        A solve that takes longer counts as late and is not used; ``None``
-        means the period ``h`` (real time).  A larger value studies the
-        controller without the real-time constraint.
-    realtime : bool
-        Judge lateness by the wall clock (hardware in the loop).  Off (the
-        default), a solve is judged by its modelled compute time
-        (``rti_step_time`` per RTI step, ``ipopt_iteration_time`` per IPOPT
-        iteration), so a simulated run does not depend on how busy the
-        machine is; the measured wall-clock times are still reported.
-    rti_step_time, ipopt_iteration_time : float
-        The modelled compute times, s (the benchmark's figures on a 2-core
-        machine, rounded up).
-    compiled : bool or None
-        RTI: evaluate the interval linearisation as compiled C
-        (``rollbot_oc.codegen``); ``None`` uses it when a C compiler exists.
-    plan : OCPSettings
-        Settings of the minimum-time legs (a coarser grid than the offline
-        default, compiled stage functions, 15 % of the motor's acceleration
-        left to the feedback, and at most 150 IPOPT iterations per start: a
-        start that has not converged by then seldom does, and the robot waits
-        for the plans it gets from rest).
-    entry : OCPSettings
-        Settings of a circle's entry onto its orbit (its ``N`` follows the entry time; in CasADi's virtual
-        machine, expanded: compiling its stages as C pays only over many circles, ``compiled=True``).
-    gates : OCPSettings
-        Settings of the plan through gates (``nmpc.gates``; its ``N`` is unused:
-        each gate has ``GATE_INTERVALS``): the exact Hessian, and half the
-        motor's speed left to the feedback (at 85 % the fast plan is tracked
-        too loosely to pass every gate within 5 cm; at 60 % the bundled course
-        passed on some machines and not on others, see the README).
+        Fraction, each period, by which the attitude carried by the model moves to the measured one, in
+        (0, 1]; 1 uses the measurement alone.
+    settle : float
+        Time after the start before the first plan on the estimated floor (the estimate settles), s.
     """
 
-    N: int = 60
-    h: float = 0.05
-    substeps: int = 1
-    solver: str = "rti"
-    waypoint_weights: "TrackingWeights" = None
-    hold_weights: "TrackingWeights" = None
-    circle_weights: "TrackingWeights" = None
-    torque_margin: float = 0.95
-    speed_margin: float = 0.98
-    constraints: tuple = ()
-    normal_margin: float = 0.1
-    friction_margin: float = 0.95
-    max_failures: int = 6
-    fallback: str = "brake"
-    pid_time: float = 2.0
-    estimate_tilt: bool = True
-    learn: tuple = ("M", "m", "k0")
-    learn_sigma: float = 0.1
-    tilt_process_noise: float = 0.01
-    gyro_sigma: float = 2e-3
-    tilt_model_error: float = 0.1
-    attitude_gain: float = 0.05
-    hold_time: float = 0.3
-    hold_radius: float = 0.05
-    replan_distance: float = 0.15
-    replan_angle: float = 0.2
-    swung_angle: float = 0.8
-    finish_hold: float = 1.0
-    gate_weight: float = 2e4
-    replan_interval: float = 1.0
-    brake_weights: "TrackingWeights" = None
-    brake_accel: float = 15.0
-    brake_wait: float = 4.0
-    recover_speed: float = 0.02
-    recover_drive: float = 0.3
-    plan_handovers: tuple = (1.2,)
-    ride_accels: tuple = (2.0,)
-    tilt_settle: float = 0.3
-    plan_ahead: float = 0.0
-    plan_iteration_time: float = 0.008
-    plan_starts: int = 4
-    plan_resumes: int = 3
-    plan_quick: float | None = 0.25
-    refine_fresh: int = 1
-    legs_ahead: int = 2
-    stone_distance: float = 0.6
-    caution: float = 0.9
-    caution_floor: float = 0.7
-    plan_guess_time: float = 0.3
-    entry_times: tuple = (5.0, 7.0, 10.0)
-    entry_shift_speed: float = 0.35
-    entry_interval: float = 0.1
-    entry_handover: float = 3.0
-    max_solve_time: float | None = None
-    realtime: bool = False
-    rti_step_time: float = 0.01
-    ipopt_iteration_time: float = 0.01
-    compiled: bool | None = None
-    plan: OCPSettings = field(default_factory=lambda: OCPSettings(N=40, accel_margin=0.85, compiled=True, max_iter=150))
-    entry: OCPSettings = field(default_factory=OCPSettings)
-    gates: OCPSettings = field(default_factory=lambda: OCPSettings(accel_margin=0.85, speed_margin=0.5,
-                                                                   hessian="exact"))
+    owner, group = "NMPC", "filter"
+    enabled: bool = flag(True)
+    learn: tuple = names(("M", "m", "k0"), LEARNABLE)
+    learn_sigma: float = number(0.1, 0.0, 0.3, open_low=True)
+    process_noise: float = number(0.01, 0.0, open_low=True)
+    gyro_sigma: float = number(2e-3, 0.0, open_low=True)
+    model_error: float = number(0.1, 0.0)
+    attitude_gain: float = number(0.05, 0.0, 1.0, open_low=True)
+    settle: float = number(0.3, 0.0, 10.0)
+
+
+@dataclass(frozen=True)
+class Arrival(Checked):
+    """At a stop.
+
+    Attributes
+    ----------
+    hold_radius : float
+        Past a leg's end within this distance of its stop, the robot is held where it arrived, m.
+    hold_time : float
+        How long past a leg's end a robot at rest outside its stop's tolerance waits before it gets a new
+        leg to the same stop, s.
+    finish_hold : float
+        How long the robot is held at the last stop before the run is done, s.
+    """
+
+    owner, group = "NMPC", "arrival"
+    hold_radius: float = number(0.05, 0.0)
+    hold_time: float = number(0.3, 0.0)
+    finish_hold: float = number(1.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Recovery(Checked):
+    """Fallbacks of the tracking step and recovery onto a plan.
+
+    Attributes
+    ----------
+    max_failures : int
+        Consecutive failed or late solves (the shifted plan followed meanwhile) before the fallback.
+    fallback : {"brake", "pid"}
+        Stops: ramp the motor's speed to zero and bring the robot to rest (``"brake"``), or the paper's PID
+        towards the current stop for ``pid_time`` (``"pid"``).  Circles always fall back to the PID.
+    pid_time : float
+        How long the PID keeps control after taking over, s.
+    brake_accel : float
+        Rate of the fallback's ramp of the motor's speed to zero, rad/s^2.
+    brake_wait : float
+        Longest wait for the robot to come to rest before its new leg is planned anyway, s.
+    recover_speed, recover_drive : float
+        At rest: shell-centre speed below ``recover_speed`` (m/s) and driving speed below ``recover_drive``
+        (rad/s).
+    replan_distance : float
+        A robot farther than this from its plan is brought to rest and gets a new leg, m; a leg planned ahead
+        is followed only if it starts within this of the robot.
+    replan_interval : float
+        Least time on a leg before the robot may be found off its plan, s.
+    replan_angle : float
+        A leg planned ahead is followed only if it starts with the robot's attitude within this angle, rad.
+    swung_angle : float
+        A robot at rest turned more than this from its balanced rest is held at that rest instead, rad, in
+        (0, pi].
+    caution, caution_floor : float
+        After each recovery, later legs from rest have their speed and acceleration limits scaled by
+        ``caution`` once more, down to ``caution_floor`` (both in (0, 1]).
+    stone_distance : float
+        A leg from rest farther than this that cannot be planned goes to a stepping stone this far towards
+        its stop first, m.
+    """
+
+    owner, group = "NMPC", "recovery"
+    max_failures: int = number(6, 1, 100, integer=True)
+    fallback: str = choice("brake", "brake", "pid")
+    pid_time: float = number(2.0, 0.0, open_low=True)
+    brake_accel: float = number(15.0, 0.0, open_low=True)
+    brake_wait: float = number(4.0, 0.0, open_low=True)
+    recover_speed: float = number(0.02, 0.0, open_low=True)
+    recover_drive: float = number(0.3, 0.0, open_low=True)
+    replan_distance: float = number(0.15, 0.0, open_low=True)
+    replan_interval: float = number(1.0, 0.0)
+    replan_angle: float = number(0.2, 0.0, math.pi, open_low=True)
+    swung_angle: float = number(0.8, 0.0, math.pi, open_low=True)
+    caution: float = number(0.9, 0.0, 1.0, open_low=True)
+    caution_floor: float = number(0.7, 0.0, 1.0, open_low=True)
+    stone_distance: float = number(0.6, 0.0, open_low=True)
+
+
+@dataclass(frozen=True)
+class PlannerSettings(Checked):
+    """Plans computed as the robot moves: legs between stops, and plans through gates.
+
+    Attributes
+    ----------
+    handovers : tuple of float
+        A leg started on its quasi-stable guess is refined from where the robot will be each of these times
+        later, s; of the refinements ready in time, the one that arrives first takes over.
+    ride_accels : tuple of float
+        Ramp rates of the quasi-stable guesses a leg starts on at once, rad/s^2.
+    ahead : float
+        Fraction of the current leg gone by when the next leg is planned, in [0, 1].
+    legs_ahead : int
+        Legs beyond the current one planned ahead, one after the other, in [0, 10].
+    starts : int
+        Quasi-stable guesses a leg from rest is solved from (the fastest result kept), in [1, 10].
+    resumes : int
+        Starts solved again from where they stopped if none converged, in [0, 10].
+    quick : float or None
+        The last start is the quickest guess whose score is within this of the best's, m; None: by score.
+    fresh : int
+        Fresh quasi-stable guesses a refinement is also solved from, in [0, 5].
+    legs : OCPSettings
+        The minimum-time legs (a coarse grid, compiled stages, 15 % of the motor's acceleration left to the
+        feedback, at most 150 IPOPT iterations per start).
+    gates : OCPSettings
+        The plan through gates (exact Hessian, half the motor's speed left to the feedback).
+    """
+
+    owner, group = "NMPC", "planner"
+    handovers: tuple = numbers((1.2,), 0.0, 60.0)
+    ride_accels: tuple = numbers((2.0,), 0.0, 1e3)
+    ahead: float = number(0.0, 0.0, 1.0)
+    legs_ahead: int = number(2, 0, 10, integer=True)
+    starts: int = number(4, 1, 10, integer=True)
+    resumes: int = number(3, 0, 10, integer=True)
+    quick: float | None = number(0.25, 0.0, optional=True)
+    fresh: int = number(1, 0, 5, integer=True)
+    legs: OCPSettings = typed(lambda: OCPSettings(N=40, accel_margin=0.85, compiled=True, max_iter=150), OCPSettings)
+    gates: OCPSettings = typed(lambda: OCPSettings(accel_margin=0.85, speed_margin=0.5, hessian="exact"),
+                                OCPSettings)
+
+
+@dataclass(frozen=True)
+class EntrySettings(Checked):
+    """A circle's entry onto its orbit.
+
+    Attributes
+    ----------
+    times : tuple of float
+        Durations tried in order for the entry (least effort in that time), s.
+    shift_speed : float
+        How fast an entry is taken to move the robot's revolving centre, m/s: durations too short for it
+        are skipped.
+    interval : float
+        Interval of the entry's grid, s.
+    handover : float
+        The entry starts from where the ramp up to the orbit's speed will be this long after it is planned, s.
+    ocp : OCPSettings
+        Settings of the entry's problem (its ``N`` follows the entry's duration).
+    """
+
+    owner, group = "NMPC", "entry"
+    times: tuple = numbers((5.0, 7.0, 10.0), 0.0, 600.0)
+    shift_speed: float = number(0.35, 0.0, open_low=True)
+    interval: float = number(0.1, 0.0, 1.0, open_low=True)
+    handover: float = number(3.0, 0.0, open_low=True)
+    ocp: OCPSettings = typed(OCPSettings, OCPSettings)
+
+
+@dataclass(frozen=True)
+class Timing(Checked):
+    """The compute-time model: what decides when a solve is late and when a plan is ready.
+
+    Attributes
+    ----------
+    realtime : bool
+        Judge by the wall clock (a robot); off, by the modelled times below, so that a simulated run does
+        not depend on how busy the machine is (the measured times are still reported).
+    max_solve_time : float or None
+        A solve longer than this is late and not used, s; None: the interval ``h``.
+    rti_step : float
+        Modelled time of one real-time iteration, s.
+    ipopt_iteration : float
+        Modelled time of one IPOPT iteration of the tracking problem, s.
+    plan_iteration : float
+        Modelled time of one IPOPT iteration of a plan, s.
+    plan_guess : float
+        Modelled time of the quasi-stable guesses of a leg, s.
+    """
+
+    owner, group = "NMPC", "timing"
+    realtime: bool = flag(False)
+    max_solve_time: float | None = number(None, 0.0, open_low=True, optional=True)
+    rti_step: float = number(0.01, 0.0)
+    ipopt_iteration: float = number(0.01, 0.0)
+    plan_iteration: float = number(0.008, 0.0)
+    plan_guess: float = number(0.3, 0.0)
+
+
+_GROUPS = {"horizon": Horizon, "weights": Weights, "limits": Limits, "filter": FilterSettings,
+           "arrival": Arrival, "recovery": Recovery, "planner": PlannerSettings, "entry": EntrySettings,
+           "timing": Timing}
+
+
+@dataclass(frozen=True)
+class NMPCSettings:
+    """Settings of the NMPC, one group per concern (module doc); a group may be given as a dict.
+
+    Attributes
+    ----------
+    horizon : Horizon
+        The tracking problem's grid and solver.
+    weights : Weights
+        The tracking cost's weights on legs, holding, braking, circles and gates.
+    limits : Limits
+        The share of the robot's limits the tracking may use, and more path constraints.
+    filter : FilterSettings
+        The tilt and model filter.
+    arrival : Arrival
+        Holding at a stop.
+    recovery : Recovery
+        Fallbacks, and getting back onto a plan.
+    planner : PlannerSettings
+        Legs and gate plans computed as the robot moves.
+    entry : EntrySettings
+        A circle's entry onto its orbit.
+    timing : Timing
+        The compute-time model.
+    """
+
+    horizon: Horizon = field(default_factory=Horizon)
+    weights: Weights = field(default_factory=Weights)
+    limits: Limits = field(default_factory=Limits)
+    filter: FilterSettings = field(default_factory=FilterSettings)
+    arrival: Arrival = field(default_factory=Arrival)
+    recovery: Recovery = field(default_factory=Recovery)
+    planner: PlannerSettings = field(default_factory=PlannerSettings)
+    entry: EntrySettings = field(default_factory=EntrySettings)
+    timing: Timing = field(default_factory=Timing)
 
     def __post_init__(self):
-        if self.waypoint_weights is None:
-            object.__setattr__(self, "waypoint_weights", TrackingWeights.for_waypoints())
-        if self.circle_weights is None:
-            object.__setattr__(self, "circle_weights", TrackingWeights.for_circles())
-        if self.hold_weights is None:
-            object.__setattr__(self, "hold_weights", TrackingWeights.for_holding())
-        if self.brake_weights is None:
-            object.__setattr__(self, "brake_weights", TrackingWeights.for_braking())
-        if self.fallback not in ("brake", "pid"):
-            raise ValueError(f"NMPC fallback = {self.fallback!r}; valid are 'brake', 'pid'")
-        if self.solver not in ("ipopt", "rti"):
-            raise ValueError(f"NMPC solver = {self.solver!r}; valid are 'ipopt', 'rti'")
-        if not (isinstance(self.N, int) and self.N >= 2):
-            raise ValueError(f"NMPC N = {self.N!r} must be a whole number >= 2")
-        from rollbot_oc.control.nmpc.estimation import check_filter  # (estimation needs no settings)
+        for name, cls in _GROUPS.items():
+            value = getattr(self, name)
+            if isinstance(value, dict):
+                object.__setattr__(self, name, _group_from(cls, name, value))
+            elif not isinstance(value, cls):
+                raise out_of_range("NMPC", name, value, f"a {cls.__name__} or a dict of its fields")
 
-        object.__setattr__(self, "learn", tuple(self.learn))
-        check_filter(self.learn, self.learn_sigma, self.attitude_gain, "NMPC ")
-        if not (math.isfinite(self.swung_angle) and 0 < self.swung_angle <= math.pi):
-            raise ValueError(f"NMPC swung_angle = {self.swung_angle!r} rad is out of range: valid is (0, pi]")
-        if not (math.isfinite(self.entry_shift_speed) and self.entry_shift_speed > 0):
-            raise ValueError(f"NMPC entry_shift_speed = {self.entry_shift_speed!r} m/s must be positive")
-        object.__setattr__(self, "ride_accels", tuple(self.ride_accels))
-        if not self.ride_accels or not all(isinstance(a, (int, float)) and math.isfinite(a) and a > 0
-                                           for a in self.ride_accels):
-            raise ValueError(f"NMPC ride_accels = {self.ride_accels!r} must be positive ramp rates, rad/s^2")
-        if self.plan_quick is not None and not (isinstance(self.plan_quick, (int, float))
-                                                and not isinstance(self.plan_quick, bool)
-                                                and math.isfinite(self.plan_quick) and self.plan_quick >= 0):
-            raise ValueError(f"NMPC plan_quick = {self.plan_quick!r} must be None or a distance >= 0 m")
-        if not (isinstance(self.refine_fresh, int) and not isinstance(self.refine_fresh, bool)
-                and 0 <= self.refine_fresh <= 5):
-            raise ValueError(f"NMPC refine_fresh = {self.refine_fresh!r} must be a whole number in [0, 5]")
-        if not (math.isfinite(self.h) and 0 < self.h <= 0.5):
-            raise ValueError(f"NMPC h = {self.h!r} s is out of range: valid is (0, 0.5]")
+    def replace(self, **groups) -> "NMPCSettings":
+        """These settings with the fields given per group changed, e.g. ``replace(horizon={"N": 30})``
+        (a group object replaces the whole group)."""
+        unknown = sorted(set(groups) - set(_GROUPS))
+        if unknown:
+            raise ConfigError(f"NMPC settings have no group {unknown[0]!r}: valid are {', '.join(_GROUPS)}")
+        changed = {name: (_group_from(_GROUPS[name], name, value, getattr(self, name))
+                          if isinstance(value, dict) else value) for name, value in groups.items()}
+        return replace(self, **changed)
+
+    @classmethod
+    def embedded(cls) -> "NMPCSettings":
+        """For a robot's processor: 25 intervals of 0.12 s with one RK4 step each (the same 3 s horizon),
+        3 failed solves before the fallback, and a filter that learns the tilt alone from the measured
+        attitude (``rollbot-oc export-c``)."""
+        return cls(horizon={"N": 25, "h": 0.12, "substeps": 1}, recovery={"max_failures": 3},
+                   filter={"learn": (), "attitude_gain": 1.0})
+
+
+def _group_from(cls, name: str, values: dict, base=None):
+    """The group ``cls`` with the fields of ``values`` (over ``base``, else the defaults); an unknown field
+    is a one-line ``ConfigError`` listing the valid ones."""
+    valid = [f.name for f in fields(cls)]
+    unknown = [key for key in values if key not in valid]
+    if unknown:
+        raise ConfigError(f"NMPC {name} has no field {unknown[0]!r}: valid are {', '.join(valid)}")
+    return replace(base, **values) if base is not None else cls(**values)

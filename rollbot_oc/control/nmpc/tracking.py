@@ -95,16 +95,16 @@ class _Tracking:
         self.params = params
         self.mission = mission if mission is not None else Mission()
         self._mission_values = self.mission.tracking_values()
-        use_c = s.compiled if s.compiled is not None else compiler() is not None
+        use_c = s.horizon.compiled if s.horizon.compiled is not None else compiler() is not None
         self.compiled = use_c and self.route_name == "rti"
-        margins = (s.torque_margin, s.normal_margin, s.friction_margin, s.speed_margin)
-        self.route = _route(self.route_name, s.N, s.h, s.substeps, margins, tuple(s.constraints),
+        margins = (s.limits.torque_margin, s.limits.normal_margin, s.limits.friction_margin, s.limits.speed_margin)
+        self.route = _route(self.route_name, s.horizon.N, s.horizon.h, s.horizon.substeps, margins, tuple(s.limits.constraints),
                             type(self.mission), self.compiled)
         ocp = self.route.transcription.ocp
-        self.relax = RELAXABLE + tuple(c.name for c, at in ocp.constraints[-len(s.constraints):]) \
-            if s.constraints else RELAXABLE
+        self.relax = RELAXABLE + tuple(c.name for c, at in ocp.constraints[-len(s.limits.constraints):]) \
+            if s.limits.constraints else RELAXABLE
         self.layout = self.route.transcription.layout
-        self.diag = weights.diagonal(s.N)
+        self.diag = weights.diagonal(s.horizon.N)
         self.n_x = self.layout.size
         self._last = None
 
@@ -112,7 +112,7 @@ class _Tracking:
         """The solve's parameters: node weights ``diag`` (``TrackingWeights.diagonal``) and ``mission_weights``
         as the square roots the problem takes; the last node's by ``h`` (the path terms are integrals, the
         terminal one is not)."""
-        N, h = self.settings.N, self.settings.h
+        N, h = self.settings.horizon.N, self.settings.horizon.h
         diag = self.diag if diag is None else diag
         node = np.ones(N + 1)
         node[-1] = h
@@ -199,7 +199,7 @@ class RTISolver(_Tracking):
 
     def modelled_time(self) -> float:
         """Modelled compute time of a solve: ``iterations`` RTI steps of ``rti_step_time``, s."""
-        return self.iterations * self.settings.rti_step_time
+        return self.iterations * self.settings.timing.rti_step
 
 
 class TrackingSolver(_Tracking):
@@ -212,4 +212,4 @@ class TrackingSolver(_Tracking):
 
     def modelled_time(self) -> float:
         """Modelled compute time of the last solve: its IPOPT iterations times ``ipopt_iteration_time``, s."""
-        return (self._last.iterations if self._last is not None else 0) * self.settings.ipopt_iteration_time
+        return (self._last.iterations if self._last is not None else 0) * self.settings.timing.ipopt_iteration

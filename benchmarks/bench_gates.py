@@ -2,9 +2,10 @@
 
 Each course is ``courses.random_gate_course(seed, index)`` (3 to 6 gates, 0.4 to 1.2 m apart, turns up to
 120 deg, slopes to 2 deg, random robots, sensors and +-10 % model error), run in closed loop with the
-controller's believed model and the course's sensor noise.  A course passes when the run completed (every
-gate within its tolerance, no contact event) without a torque or speed violation; otherwise its row says
-why.  Prints one row per course and a summary; ``--out FILE`` also writes them (Markdown).
+controller's believed model and the course's sensor noise, for at most ``20 + 8 n`` s of simulated time
+(n gates; the course's own duration is sized for the slow PID).  A course passes when the run completed
+(every gate within its tolerance, no contact event) without a torque or speed violation; otherwise its row
+says why.  Prints one row per course as it ends and a summary; ``--out FILE`` also writes them (Markdown).
 
 Run: .venv/bin/python benchmarks/bench_gates.py [--courses 50] [--workers 2] [--quick] [--out FILE]
 """
@@ -30,7 +31,8 @@ def run_course(index: int, seed: int = 0) -> dict:
            "slope_deg": round(course.inputs["slope_deg"], 2)}
     start = time.perf_counter()
     try:
-        m = run_problem(course.problem, "nmpc", seed=course.noise_seed, params=course.believed,
+        duration = min(course.problem.duration, 20.0 + 8.0 * row["gates"])
+        m = run_problem(course.problem, "nmpc", seed=course.noise_seed, params=course.believed, duration=duration,
                         show_progress=False).metrics
     except NotConverged as exc:  # the plan through the gates failed before the robot moved
         return {**row, "passed": False, "why": f"no plan: {exc.status}", "wall": time.perf_counter() - start}
@@ -44,7 +46,8 @@ def run_course(index: int, seed: int = 0) -> dict:
     misses = m.get("gate_misses") or []
     return {**row, "passed": not why, "why": "; ".join(why), "time": m.get("completion_time"),
             "worst_miss_cm": round(100 * max(misses), 2) if misses else None, "replans": m.get("stop_replans"),
-            "plan_failures": m.get("plan_failures"), "wall": time.perf_counter() - start}
+            "plan_failures": m.get("plan_failures"), "plan_iterations": [p["iterations"] for p in m.get("plans", [])],
+            "wall": time.perf_counter() - start}
 
 
 def main() -> int:
@@ -55,8 +58,11 @@ def main() -> int:
     parser.add_argument("--out", help="write the table and summary here (Markdown)")
     args = parser.parse_args()
     count = 4 if args.quick else args.courses
+    rows = []
     with ProcessPoolExecutor(args.workers) as pool:
-        rows = list(pool.map(run_course, range(count)))
+        for row in pool.map(run_course, range(count)):
+            print(row, flush=True)
+            rows.append(row)
     lines = [f"# bench_gates {datetime.datetime.now().isoformat(timespec='seconds')}: {count} random gate courses "
              f"(seed 0), NMPC, {args.workers} workers, load {os.getloadavg()[0]:.1f}", "",
              "| course | gates | length m | slope deg | passed | time s | worst miss cm | replans | plan failures "

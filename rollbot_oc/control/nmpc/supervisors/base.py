@@ -105,3 +105,12 @@ class Supervisor:
         s = self.c.settings.horizon
         Zr, Ur = self.reference.sample(self.segment, t_now - self.segment_start, s.h, s.N, position=z[REDUCED.position])
         return Window(np.asarray(Zr), np.asarray(Ur))
+
+    def _predicted(self, t: float):
+        """The reduced state (10,) the tracking step's last successful solve predicts for the time ``t`` (s),
+        or None if that is beyond its horizon (or there is none)."""
+        if self.c.step.prediction is None:
+            return None
+        Z, solved = self.c.step.prediction
+        node = int(round((t - solved) / self.c.settings.horizon.h))
+        return Z[:, node].copy() if 0 <= node < Z.shape[1] else None

@@ -233,15 +233,6 @@ class StopsSupervisor(Supervisor):
         elif any(t_now - self.segment_start + ahead < guess.T - ahead for ahead in s.planner.handovers):
             self._refine_at = max(planner.free, t_now + s.horizon.h)  # failed: again once computed
 
-    def _predicted(self, t: float):
-        """The reduced state (10,) the tracking step's last successful solve predicts for the time ``t`` (s),
-        or None if that is beyond its horizon (or there is none)."""
-        if self.c.step.prediction is None:
-            return None
-        Z, solved = self.c.step.prediction
-        node = int(round((t - solved) / self.c.settings.horizon.h))
-        return Z[:, node].copy() if 0 <= node < Z.shape[1] else None
-
     def _launch(self, segment: int, t_now: float, t_start, z_start, guess=None, guessed=(0.0, 0.0)):
         """Plan leg ``segment`` from ``z_start`` on the estimated floor with the learned model, to be followed
         from ``t_start`` (s; None: from the moment the stop before it is reached).  From rest (no ``guess``):

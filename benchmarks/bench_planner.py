@@ -2,11 +2,11 @@
 
 In simulation the NMPC uses a leg only once its modelled compute time has
 passed (``NMPCSettings.timing.plan_iteration`` per IPOPT iteration and
-``plan_guess_time`` per set of quasi-stable guesses), so that runs do not
+``timing.plan_guess`` per set of quasi-stable guesses), so that runs do not
 depend on how busy the machine is.  This benchmark measures what those two
 figures stand for: it plans every leg of the N-shape and of random courses
 as the NMPC plans a leg from rest (the planner's settings, the course's
-believed robot on its floor, each of ``plan_starts`` quasi-stable guesses
+believed robot on its floor, each of ``planner.starts`` quasi-stable guesses
 solved in turn, the next leg from where the fastest ended), and prints the
 median, 95th percentile and largest time per iteration over the solves (the
 wall time of a solve over its iterations: setting up a solve is in it) and

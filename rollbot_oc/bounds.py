@@ -10,7 +10,7 @@ acceleration limits and the no-jump and no-slide margins of the planner
 (``OCPSettings``), each leg starting where the previous plan ended (heading
 included), each the fastest of ``BOUND_STARTS`` starts (``RestToRest.fastest``; if none
 converges, up to ``BOUND_RESUMES`` of them are solved again from where IPOPT stopped, as the NMPC's
-planner does, ``NMPCSettings.plan_resumes``).  It is
+planner does, ``NMPCSettings.planner.resumes``).  It is
 a bound in the sense the issue tracker uses it: what the planner finds, a
 local optimum, not a proven global minimum (single starts land in optima up
 to twice as slow).

@@ -44,7 +44,8 @@ from rollbot_oc.errors import ConfigError, NumericalFailure
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.reproducible import norm
 
-__all__ = ["CourseRanges", "GateCourseRanges", "Course", "random_course", "random_gate_course", "course_duration", "DURATION_BASE", "DURATION_PER_METRE",
+__all__ = ["CourseRanges", "GateCourseRanges", "Course", "random_course", "random_gate_course", "course_duration",
+           "DURATION_BASE", "DURATION_PER_METRE",
            "DURATION_PER_STOP"]
 
 PROTOTYPE = RollbotParams()

@@ -141,7 +141,7 @@ def test_the_tilt_estimate_finds_the_slope_and_the_entry_is_planned_while_moving
 
 def test_a_far_start_tries_only_entries_long_enough_and_follows_the_first_in_time():
     """approach: the ramp from 1.8 m out revolves about a centre far from the orbit's, so the entry skips the
-    durations too short to move it there (``entry_shift_speed``; a shorter one spent its 400 iterations and
+    durations too short to move it there (``entry.shift_speed``; a shorter one spent its 400 iterations and
     made the next too late); the first tried converges, is ready before its start, and is followed onto the
     circle, without a failed QP or the PID."""
     problem = load_problem(PROBLEMS / "approach.toml").with_duration(20.0)
@@ -393,7 +393,7 @@ def test_a_gentle_or_brisk_first_guess_reaches_the_first_stop_without_a_recovery
 def test_the_first_leg_is_refined_also_from_a_fresh_guess():
     """The N-shape's first stop, seed 0: refined from the ridden guess's tail alone, the first leg is a slow
     local optimum (measured: a 4.73 s plan, the stop at 6.25 s); refined also from a fresh quasi-stable guess
-    from the same predicted start (``refine_fresh``), ready in time with the guesses' computation charged,
+    from the same predicted start (``planner.fresh``), ready in time with the guesses' computation charged,
     it is a 3.37 s plan and the stop is reached at 4.9 s."""
     base = load_problem(PROBLEMS / "n_shape.toml")
     problem = replace(base, mission=base.mission.first(1), duration=10.0)
@@ -403,7 +403,7 @@ def test_the_first_leg_is_refined_also_from_a_fresh_guess():
     assert fresh["stop_times"][0] + 1.0 <= tail["stop_times"][0]
     assert fresh["plans"][0]["T"] + 1.0 <= tail["plans"][0]["T"] and fresh["plan_late"] == 0
     # the fresh guesses' computation is charged: at 1.5 s for them the fresh leg is ready after its handover
-    # and the tail's leg takes over, as with refine_fresh = 0
+    # and the tail's leg takes over, as with planner.fresh = 0
     slow = run_problem(problem, "nmpc", show_progress=False,
                        settings=NMPCSettings(planner={"fresh": 1}, timing={"plan_guess": 1.5})).metrics
     assert slow["plans"][0]["T"] == tail["plans"][0]["T"] and slow["stop_times"] == tail["stop_times"]

@@ -129,7 +129,8 @@ def _config_header(step: StepFunction, settings: NMPCSettings) -> str:
              f"#define ROLLBOT_EVERY {step.every}  /* control periods per interval (solve instants) */",
              f"#define ROLLBOT_DT {step.dt!r}  /* control period, s */",
              f"#define ROLLBOT_H {step.h!r}  /* interval of the horizon, s */",
-             f"#define ROLLBOT_MAX_FAILURES {settings.recovery.max_failures}  /* failed QPs in a row before the brake */",
+             f"#define ROLLBOT_MAX_FAILURES {settings.recovery.max_failures}  /* failed QPs in a row before the brake"
+             " */",
              f"#define ROLLBOT_MEM_SIZE {L.size}  /* doubles of the controller's memory */",
              f"#define ROLLBOT_WINDOW_SIZE {step.window_size}  /* doubles of one reference window */",
              f"#define ROLLBOT_REF_SIZE {step.reference_size}  /* doubles of the step's reference input */"]

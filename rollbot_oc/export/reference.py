@@ -3,7 +3,7 @@
 The NMPC plans its legs online with IPOPT, which does not run on a microcontroller.  The exported
 controller follows the same kind of legs planned once, before the run, from the mission's start: each
 leg from rest at the previous stop (the first from the start state) to rest at its stop, the fastest of
-``plan_starts`` minimum-time plans on the level floor (the NMPC's own leg planner and settings).  Each
+``planner.starts`` minimum-time plans on the level floor (the NMPC's own leg planner and settings).  Each
 leg is sampled on the grid of the NMPC's interval ``h``: column ``l`` of a leg is its reference at local
 time ``l h`` (``control.nmpc.Reference.sample``: the plan's state and acceleration, the rest state at the
 stop from the plan's end on, which its last column holds).  The controller follows a leg from the solve
@@ -98,8 +98,8 @@ def plan_reference(stops, x0, params: RollbotParams, settings: NMPCSettings | No
     params : RollbotParams
         The controller's model (planned on its level floor).
     settings : NMPCSettings, optional
-        The NMPC's settings (``plan``, ``plan_starts``, ``constraints``, ``h``; ``EMBEDDED_SETTINGS`` by
-        default).
+        The NMPC's settings (``planner.legs``, ``planner.starts``, ``limits.constraints``, ``horizon.h``;
+        ``EMBEDDED_SETTINGS`` by default).
 
     Raises
     ------
@@ -115,7 +115,8 @@ def plan_reference(stops, x0, params: RollbotParams, settings: NMPCSettings | No
     plans, legs = [], []
     for i, stop in enumerate(stops):
         try:
-            plan = planner.fastest(z, np.asarray(stop, float), s.planner.starts, tilt=np.zeros(2), resumes=s.planner.resumes,
+            plan = planner.fastest(z, np.asarray(stop, float), s.planner.starts, tilt=np.zeros(2),
+                                   resumes=s.planner.resumes,
                                    quick=s.planner.quick)
         except SolveFailed as exc:
             raise ConfigError(f"leg {i + 1} to stop {list(map(float, stop))} cannot be planned: {exc.status}") \

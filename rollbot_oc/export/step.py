@@ -189,7 +189,9 @@ class _RTI:
         s = settings
         # the NMPC's own tracking solver: its parameters of a solve, guess, split and shift (placements)
         self.solver = solver = RTISolver(params, s.replace(horizon={"compiled": False}), s.weights.legs)
-        ocp = tracking_problem(s.horizon.N, s.horizon.h, s.horizon.substeps, s.limits.torque_margin, s.limits.normal_margin, s.limits.friction_margin,
+        lim = s.limits
+        ocp = tracking_problem(s.horizon.N, s.horizon.h, s.horizon.substeps, lim.torque_margin, lim.normal_margin,
+                               lim.friction_margin,
                                s.limits.speed_margin, constraints=tuple(s.limits.constraints))
         self.route = ocp.solver("rti", qp_solver="qrqp", compiled=False)
         self.tr = tr = self.route.transcription
@@ -287,9 +289,11 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     if abs(every * dt - s.horizon.h) > 1e-9:
         raise ValueError(f"NMPC h = {s.horizon.h} s must be a whole number of control periods dt = {dt} s")
     if s.filter.learn or s.filter.attitude_gain != 1.0:
-        raise ValueError(f"exported step: learn = {list(s.filter.learn)!r} and attitude_gain = {s.filter.attitude_gain!r}; its "
+        raise ValueError(f"exported step: learn = {list(s.filter.learn)!r} and attitude_gain = "
+                         f"{s.filter.attitude_gain!r}; its "
                          f"filter learns the tilt alone from the measured attitude: valid are [] and 1")
-    estimator = TiltEstimator(params, dt, s.filter.process_noise, s.filter.gyro_sigma, s.filter.model_error, attitude_gain=1.0)
+    estimator = TiltEstimator(params, dt, s.filter.process_noise, s.filter.gyro_sigma, s.filter.model_error,
+                              attitude_gain=1.0)
     update = _estimator_update(estimator)
     predict = estimator.step.fun
     rti = _RTI(params, s)
@@ -349,7 +353,8 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     local = (k - segment_k) * dt
     Zr = ca.reshape(follow[:NZ * (N + 1)], NZ, N + 1)
     Ur = follow[NZ * (N + 1):NZ * (N + 1) + N].T
-    # past the leg's end near its stop: hold where the robot arrived (``StopsSupervisor._settle``), gently; near is within
+    # past the leg's end near its stop: hold where the robot arrived (``StopsSupervisor._settle``), gently; near is
+    # within
     # the stop's tolerance (the NMPC's smaller ``hold_radius`` leaves a robot further off to a new leg, which
     # this controller cannot plan: chasing the last centimetres at rest keeps its motor from settling)
     hold_radius = max(s.arrival.hold_radius, rule.tolerance)

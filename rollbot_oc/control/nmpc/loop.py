@@ -47,7 +47,7 @@ class NMPC(ControllerBase):
         self.dt = dt
         self.settings = s = settings or NMPCSettings()
         kind = supervisor_for(mission)
-        self.weights = s.weights.circle if mission.orbit is not None else s.weights.legs
+        self.weights = kind.tracking_weights(s)
         self.telemetry = Telemetry()
         self.step = TrackingStep(self.params, s, self.weights, mission, dt, self.telemetry)
         self.every = self.step.every
@@ -76,7 +76,7 @@ class NMPC(ControllerBase):
     @property
     def stops(self) -> list:
         """The stops reached so far, as their monitors recorded them."""
-        return getattr(self.supervisor, "stops", [])
+        return self.supervisor.stops
 
     def prepare(self, x0) -> Reference:
         """What to follow first, from the full state ``x0`` (11,); called by ``run_problem`` before the run.

@@ -220,7 +220,8 @@ class TrackingStep:
             speed = float(z[REDUCED.theta_dot])
             self._ramp = (t_now, speed)
             self.until = t_now + abs(speed) / s.recovery.brake_accel + s.horizon.h
-            self.modes.go(StepMode.RAMP, k, "failed or late with nothing to follow (none, or max_failures in a row): brake")
+            self.modes.go(StepMode.RAMP, k,
+                          "failed or late with nothing to follow (none, or max_failures in a row): brake")
             return
         log.fallback_pid += 1
         self._ramp = None

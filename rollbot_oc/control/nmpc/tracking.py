@@ -98,7 +98,8 @@ class _Tracking:
         use_c = s.horizon.compiled if s.horizon.compiled is not None else compiler() is not None
         self.compiled = use_c and self.route_name == "rti"
         margins = (s.limits.torque_margin, s.limits.normal_margin, s.limits.friction_margin, s.limits.speed_margin)
-        self.route = _route(self.route_name, s.horizon.N, s.horizon.h, s.horizon.substeps, margins, tuple(s.limits.constraints),
+        self.route = _route(self.route_name, s.horizon.N, s.horizon.h, s.horizon.substeps, margins,
+                            tuple(s.limits.constraints),
                             type(self.mission), self.compiled)
         ocp = self.route.transcription.ocp
         self.relax = RELAXABLE + tuple(c.name for c, at in ocp.constraints[-len(s.limits.constraints):]) \
@@ -198,7 +199,7 @@ class RTISolver(_Tracking):
                                   **values)
 
     def modelled_time(self) -> float:
-        """Modelled compute time of a solve: ``iterations`` RTI steps of ``rti_step_time``, s."""
+        """Modelled compute time of a solve: ``iterations`` RTI steps of ``timing.rti_step``, s."""
         return self.iterations * self.settings.timing.rti_step
 
 

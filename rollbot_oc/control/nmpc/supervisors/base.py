@@ -45,6 +45,12 @@ class Supervisor:
 
     initial: Enum = None
     fallback = "pid"  # what the step falls back to when it gives up: "brake" (RAMP) or "pid"
+    stops: tuple = ()  # what the stop monitors recorded at each stop reached (courses of stops)
+
+    @staticmethod
+    def tracking_weights(settings: NMPCSettings):
+        """The tracking cost's default weights for this mission kind (``weights.legs``)."""
+        return settings.weights.legs
 
     def __init__(self, context: Context):
         self.c = context

@@ -36,10 +36,15 @@ class OrbitSupervisor(Supervisor):
 
     initial = M.RAMP
 
+    @staticmethod
+    def tracking_weights(settings):
+        """A circle's: the distance from it weighed (``weights.circle``)."""
+        return settings.weights.circle
+
     def __init__(self, context):
         super().__init__(context)
         s = context.settings
-        self.weights = s.weights.circle
+        self.weights = self.tracking_weights(s)
         first = s.entry.times[0]
         self._entry(first).build(first)  # the entry's route for its first duration, now (the others if needed)
         self.reset()

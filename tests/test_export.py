@@ -1,6 +1,7 @@
 """The controller on the robot: the exported C project builds without warnings, replays the whole N-shape
 log within 1e-9 of the Python controller, and drives the simulator through ctypes to the same run."""
 
+import hashlib
 import re
 import shutil
 from dataclasses import replace
@@ -97,6 +98,7 @@ def test_export_builds_replays_a_whole_run_and_closes_the_loop_through_c(tmp_pat
     c = CController(folder, result.step, result.reference, record=True)
     run = run_problem(problem, c, show_progress=False)
     assert c.context_bytes >= result.sizes["work_bytes"]
+    assert run.metrics["library_sha256"] == hashlib.sha256((folder / "librollbot_controller.so").read_bytes()).hexdigest()
     commands = np.array(c.commands)
     assert commands.shape == result.log[:, 12].shape
     assert np.max(np.abs(commands - result.log[:, 12])) <= 1e-9

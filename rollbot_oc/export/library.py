@@ -9,6 +9,7 @@ in is one buffer of ``rollbot_context_bytes()`` bytes, allocated here once.
 from __future__ import annotations
 
 import ctypes
+import hashlib
 from pathlib import Path
 
 from rollbot_oc.errors import ConfigError
@@ -53,6 +54,7 @@ class CController(EmbeddedBase):
         lib.rollbot_init.argtypes = [ctypes.c_void_p]
         lib.rollbot_step.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_double), ctypes.POINTER(_Command)]
         self.context_bytes = int(lib.rollbot_context_bytes())
+        self.library_sha256 = hashlib.sha256(path.read_bytes()).hexdigest()  # which build the run's JSON came from
         self._context = (ctypes.c_double * (self.context_bytes // 8 + 1))()  # 8-byte aligned
         self._meas = (ctypes.c_double * 12)()
         self._command = _Command()
@@ -72,4 +74,5 @@ class CController(EmbeddedBase):
         return Command(accel=accel)
 
     def report(self) -> dict:
-        return {**super().report(), "solver": "exported C (qrqp)"}
+        return {**super().report(), "solver": "exported C (qrqp)", "library": LIBRARY,
+                "library_sha256": self.library_sha256}

@@ -180,6 +180,13 @@ def test_failed_solves_fall_back_without_crashing(monkeypatch):
         == m["failed_solves"]
     assert 1 <= m["cold_retries"] <= m["failed_solves"]  # a warm failure is tried again from the reference
     assert not m["events"] and m["duration"] == pytest.approx(20.0)
+    # the step's modes say so: the shifted plan, the PID for pid_time once the failures piled up, solving again
+    modes = m["step_modes"]
+    pid = [i for i, change in enumerate(modes) if change["mode"] == "pid"]
+    assert pid and any(change["mode"] == "shifted" for change in modes[:pid[0]])
+    assert all(modes[i + 1]["t"] - modes[i]["t"] >= NMPCSettings().recovery.pid_time - 1e-9 for i in pid
+               if i + 1 < len(modes))
+    assert sum(change["mode"] == "pid" for change in modes) == m["fallback_pid"]
 
 
 def test_a_failed_warm_start_is_solved_again_from_the_reference(monkeypatch):

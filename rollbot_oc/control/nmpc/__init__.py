@@ -6,12 +6,12 @@ of the solver from its supervision):
 * **The control step** (``step.TrackingStep``), the work of every control period: the filter on the floor's
   tilt and the model's masses and damping (``estimation.TiltEstimator``), delay compensation (a measurement
   ``L`` periods old predicted forward over the commands issued since), and at each solve instant (every
-  ``horizon.h``) one real-time iteration of the tracking problem (``tracking.tracking_problem``: the
+  ``horizon.h``) one solve of the tracking problem (a real-time iteration by default) (``tracking.tracking_problem``: the
   predicted reduced state kept near the reference over ``horizon.N`` intervals, with the motor's torque,
   speed and acceleration limits and the contact margins as constraints), warm started from the previous
   solution shifted by one interval.  A failed or late solve falls back to the previous solution; after
-  ``recovery.max_failures`` the motor's speed is ramped to zero (stops, gates) or the paper's PID takes
-  over (circles).  Its modes are ``modes.StepMode``.
+  ``recovery.max_failures`` the motor's speed is ramped to zero (stops) or the paper's PID takes over
+  (circles, gates).  Its modes are ``modes.StepMode``.
 * **A supervisor per mission kind** (``supervisors``), an explicit machine of modes with one table of
   transitions (``modes.TRANSITIONS``): for stops, legs ridden on a quasi-stable guess, refined and tracked,
   held at the stop, braked and planned again from rest (``StopsMode``); for circles, a ramp, a planned

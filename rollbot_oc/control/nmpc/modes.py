@@ -1,8 +1,8 @@
 """The NMPC's modes: one enum per machine, one table of transitions each, and the machine that keeps them.
 
-Four machines run in the NMPC: one supervisor per mission kind (``StopsMode``, ``OrbitMode``, ``GatesMode``)
-decides what the tracking step follows, and the tracking step's own ``StepMode`` says whether its solutions
-are used or a fallback commands the motor.  A machine changes mode only along a row of its table
+Two machines run in an NMPC: the supervisor of its mission kind (``StopsMode``, ``OrbitMode`` or
+``GatesMode``) decides what the tracking step follows, and the step's own ``StepMode`` says whether its
+solutions are used or a fallback commands the motor.  A machine changes mode only along a row of its table
 (``TRANSITIONS``), each row naming the condition that takes it; a change not in the table is a bug and
 raises.  Every change is kept with its time and reason (``ModeMachine.timeline``): runs report it, and the
 report draws it under the driving speed.  ``mermaid`` draws a table as a state diagram for the docs.
@@ -57,7 +57,7 @@ class GatesMode(_Mode):
 class StepMode(_Mode):
     """The tracking step."""
 
-    SOLVE = ("solve", "the real-time iteration's solutions are followed")
+    SOLVE = ("solve", "the tracking solves' solutions are followed")
     SHIFTED = ("shifted", "a solve failed or was late: the previous solution is followed")
     RAMP = ("ramp", "the motor's speed ramped to zero (and held there) for a while")
     PID = ("pid", "the paper's PID on the current goal for a while")
@@ -91,7 +91,7 @@ TRANSITIONS = {
         *[(m, S.BRAKE, "off the plan by more than replan_distance") for m in (S.RIDE, S.TRACK, S.HOLD)],
         *[(m, S.BRAKE, "at rest outside the stop's tolerance hold_time after the leg's end")
           for m in (S.RIDE, S.TRACK, S.HOLD)],
-        *[(m, S.BRAKE, "the step gave up: max_failures solves failed") for m in (S.RIDE, S.TRACK, S.HOLD)],
+        *[(m, S.BRAKE, "the step gave up: failed with nothing to follow") for m in (S.RIDE, S.TRACK, S.HOLD)],
         (S.BRAKE, S.REST, "at rest, or brake_wait has passed: its leg is planned"),
         (S.REST, S.BRAKE, "the leg from rest is ready, but the robot moved off its start"),
         (S.REST, S.TRACK, "the leg from rest is ready"),
@@ -117,7 +117,9 @@ TRANSITIONS = {
           for m in (P.SOLVE, P.SHIFTED, P.RAMP, P.PID)],
         *[(m, P.PID, "failed or late with nothing to follow (none, or max_failures in a row): PID")
           for m in (P.SOLVE, P.SHIFTED, P.RAMP, P.PID)],
-        *[(m, P.RAMP, "the supervisor stops the motor") for m in (P.SOLVE, P.SHIFTED, P.RAMP)],
+        *[(m, P.RAMP, "the supervisor stops the motor") for m in (P.SOLVE, P.SHIFTED, P.RAMP, P.PID)],
+        *[(m, P.RAMP, "the supervisor holds the motor until its plan starts") for m in (P.SOLVE, P.SHIFTED)],
+        *[(m, P.PID, "the supervisor holds the motor until its plan starts") for m in (P.SOLVE, P.SHIFTED)],
         (P.RAMP, P.SOLVE, "the fallback's time is over"),
         (P.PID, P.SOLVE, "the fallback's time is over"),
         *[(m, P.OFF, "the mission is done") for m in (P.SOLVE, P.SHIFTED, P.RAMP, P.PID)],
@@ -170,10 +172,6 @@ class ModeMachine:
                                f"for {reason!r}")
         self.mode, self.since = target, tick
         self.timeline.append(ModeChange(target, tick, reason))
-
-    def is_in(self, *modes) -> bool:
-        """Whether the current mode is one of ``modes``."""
-        return self.mode in modes
 
     def report(self, dt: float) -> list:
         """The timeline as ``[{"mode", "t", "reason"}, ...]`` (``dt``: the control period, s)."""

@@ -179,7 +179,7 @@ class Recovery(Checked):
         Consecutive failed or late solves (the shifted plan followed meanwhile) before the fallback.
     fallback : {"brake", "pid"}
         Stops: ramp the motor's speed to zero and bring the robot to rest (``"brake"``), or the paper's PID
-        towards the current stop for ``pid_time`` (``"pid"``).  Circles always fall back to the PID.
+        towards the current stop for ``pid_time`` (``"pid"``).  Circles and gates always fall back to the PID.
     pid_time : float
         How long the PID keeps control after taking over, s.
     brake_accel : float

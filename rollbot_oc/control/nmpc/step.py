@@ -10,9 +10,11 @@ from the reference.  The step's mode (``StepMode``) says what commands the motor
 * ``SOLVE``: the solution's acceleration for the current interval;
 * ``SHIFTED``: a solve failed or was late (judged by the compute-time model): the previous solution, for up
   to ``max_failures - 1`` solves;
-* ``RAMP``: the supervisor's fallback for stops and gates: the motor's speed ramped to zero at
-  ``brake_accel`` and held there until the fallback's time is over;
-* ``PID``: the paper's PID on the current goal (circles, or ``fallback = "pid"``) for ``pid_time``;
+* ``RAMP``: the motor's speed ramped to zero at ``brake_accel`` and held there until the fallback's time is
+  over: the fallback of a course of stops (``recovery.fallback = "brake"``), or a supervisor stopping the
+  motor (gates);
+* ``PID``: the paper's PID on the current goal for ``pid_time``: the fallback of circles, gates and stops with
+  ``recovery.fallback = "pid"``;
 * ``OFF``: the mission is done.
 """
 
@@ -127,9 +129,12 @@ class TrackingStep:
         self.restart()
         self.modes.go(StepMode.RAMP, k, "the supervisor stops the motor")
 
-    def hold_until(self, until: float) -> None:
-        """Keep the current fallback (the motor held still) until ``until``, s."""
+    def hold_until(self, k: int, until: float) -> None:
+        """Keep the motor held by the last fallback (its speed ramp, or the PID) until ``until``, s."""
         self.until = until
+        if self.modes.mode not in (StepMode.RAMP, StepMode.PID):
+            target = StepMode.RAMP if self._ramp is not None else StepMode.PID
+            self.modes.go(target, k, "the supervisor holds the motor until its plan starts")
 
     def finish(self, k: int) -> None:
         """The mission is done: the motor's acceleration is zero from now on."""

@@ -29,9 +29,10 @@ class Telemetry:
     cold_retries : int
         Warm-started solves that failed and were solved once more from the reference.
     fallback_shifted, fallback_pid, fallback_brake : int
-        Periods the previous solution was followed; PID and brake fallbacks taken.
+        Failed or late solves after which the previous solution was followed; PID and brake fallbacks taken.
     replans : int
-        Stops: recoveries planned from where the robot was (gates: plans through the gates left).
+        Stops: recoveries planned from where the robot was; gates: plans through the gates left from rest
+        (reported as ``stop_replans``).
     brakes : int
         Stops: recoveries (the robot brought to rest off its plan).
     plan_failures, plan_late, stones, unfit : int

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
 
-from rollbot_oc.dynamics import REDUCED
+from rollbot_oc.dynamics import REDUCED, rest_attitude
+from rollbot_oc.reproducible import dot, norm
 
 from rollbot_oc.control.nmpc.modes import ModeMachine
 from rollbot_oc.control.nmpc.planner import Planner
@@ -102,7 +104,7 @@ class Supervisor:
         return []
 
     def report(self) -> dict:
-        """The supervisor's part of the run's metrics (its mode timeline, stops, plans)."""
+        """The supervisor's part of the run's metrics: its plans and their total duration (s)."""
         legs = [seg for seg in self.reference.segments if seg is not None] if self.reference else []
         return {"plans": self.plans(), "plan_duration": float(sum(seg[0].T for seg in legs)) if legs else None}
 
@@ -120,3 +122,24 @@ class Supervisor:
         Z, solved = self.c.step.prediction
         node = int(round((t - solved) / self.c.settings.horizon.h))
         return Z[:, node].copy() if 0 <= node < Z.shape[1] else None
+
+    def _rest(self, z) -> np.ndarray:
+        """The rest state for the reduced state ``z``: where it is, still; with its attitude if that is within
+        ``swung_angle`` of the balanced rest with its motor axis' heading, else (the mass swung up: no state to
+        rest in) that rest, on the estimated floor (``dynamics.rest_attitude``)."""
+        rest = np.array(z, float)
+        rest[REDUCED.velocity] = 0.0
+        q = rest[REDUCED.quaternion]
+        try:
+            balanced = rest_attitude(q, self.c.step.estimator.params())
+        except ValueError:  # no balance on the floor estimated so far: the level floor's
+            balanced = rest_attitude(q, self.c.params.replace(slope=0.0))
+        if _turned(balanced, q) > self.c.settings.recovery.swung_angle:
+            rest[REDUCED.quaternion] = balanced
+        return rest
+
+
+def _turned(a, b) -> float:
+    """The angle between the attitudes of the quaternions ``a`` and ``b`` (either sign), rad."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return 2.0 * math.acos(min(abs(dot(a, b)) / (norm(a) * norm(b)), 1.0))

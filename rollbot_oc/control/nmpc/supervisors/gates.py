@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from rollbot_oc.control.nmpc.gates import plan_gates
 from rollbot_oc.control.nmpc.modes import GatesMode
 from rollbot_oc.control.nmpc.reference import Reference
@@ -37,6 +39,7 @@ class GatesSupervisor(Supervisor):
     def __init__(self, context):
         super().__init__(context)
         self._track_diag = context.settings.weights.legs.diagonal(context.settings.horizon.N)
+        self._brake_diag = context.settings.weights.brake.diagonal(context.settings.horizon.N)
         self.reset()
 
     def reset(self) -> None:
@@ -94,14 +97,17 @@ class GatesSupervisor(Supervisor):
                 log.plan_failed(exc.status)
                 self.modes.go(M.STOP_MOTOR, k, "the plan through the gates left failed: at rest, tried again")
                 return
-            self.c.step.hold_until(start)  # the motor held still until the plan starts
+            self.c.step.hold_until(k, start)  # the motor held still until the plan starts
             self.modes.go(M.TRACK, k, "at rest, or brake_wait has passed: a new plan through the gates left")
 
     def window(self, z, k: int) -> Window:
         """The plan, the position weighed ``weights.gate`` more at the two horizon nodes around each planned
-        gate passage."""
+        gate passage; while the motor is stopped, rest where the robot is (``weights.brake``)."""
         s = self.c.settings
         t_now = k * self.c.dt
+        if self.mode is M.STOP_MOTOR:  # (solved only once the motor's ramp is over) rest where the robot is
+            rest = self._rest(z)
+            return Window(np.tile(rest[:, None], (1, s.horizon.N + 1)), np.zeros(s.horizon.N), self._brake_diag)
         window = self._sample(z, t_now)
         local = t_now - self.segment_start
         diag = self._track_diag.copy()

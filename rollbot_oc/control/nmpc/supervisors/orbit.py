@@ -51,7 +51,7 @@ class OrbitSupervisor(Supervisor):
 
     def reset(self) -> None:
         super().reset()
-        self._refine_at = None  # RAMP: when to plan the entry, s
+        self._plan_entry_at = None  # RAMP: when to plan the entry, s
         self._entry_shift = 0.0  # how far the ramp's revolving centre is from the orbit's, m
 
     def prepare(self, x0, radius_map) -> Reference:
@@ -60,25 +60,23 @@ class OrbitSupervisor(Supervisor):
         guess, phase = orbit_guess(to_reduced(x0), orbit.centre, entry, hold=s.filter.settle + 4 * s.entry.handover)
         self.reference = Reference([(guess, {})], self._orbit(entry, phase))
         self._entry_shift = float(norm(_revolving_centre(guess, entry.quasi.Omega) - orbit.centre))
-        self.segment_start, self._refine_at = 0.0, s.filter.settle
+        self.segment_start, self._plan_entry_at = 0.0, s.filter.settle
         return self.reference
 
     def advance(self, k: int, obs, reached: bool, z) -> None:
         """Plan the entry from the ramp ``filter.settle`` s after the start, and follow it once it is ready and
         its start has come (a late one is planned again from further along the ramp, while the ramp lasts)."""
         t_now, planner = k * self.c.dt, self.c.planner
-        if self._refine_at is not None and t_now >= self._refine_at - 1e-9:
-            self._refine_at = None
+        if self._plan_entry_at is not None and t_now >= self._plan_entry_at - 1e-9:
+            self._plan_entry_at = None
             self._launch_entry(t_now)
         pending = planner.get(0)
         if pending is not None and t_now >= max(pending.ready, pending.start) - 1e-9:
-            planner.pop(0)
-            if pending.plan is None:  # no entry: the orbit from the end of the ramp
-                pass
-            elif pending.late:  # planned again from here, starting from this plan
+            planner.pop(0)  # (none converged: the orbit from the end of the ramp)
+            if pending.plan is not None and pending.late:  # planned again from here, starting from this plan
                 self.c.telemetry.plan_late += 1
                 self._launch_entry(t_now, pending.plan)
-            else:
+            elif pending.plan is not None:
                 plan = pending.plan
                 self.reference = Reference([(plan, {})], self._orbit(self._entry(plan.T), plan.extra["phase"]))
                 self.segment_start = pending.start

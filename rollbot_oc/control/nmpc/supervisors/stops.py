@@ -24,12 +24,12 @@ import numpy as np
 from rollbot_oc.control.nmpc.modes import StopsMode
 from rollbot_oc.control.nmpc.reference import Reference
 from rollbot_oc.control.nmpc.step import Window
-from rollbot_oc.control.nmpc.supervisors.base import Supervisor
+from rollbot_oc.control.nmpc.supervisors.base import Supervisor, _turned
 from rollbot_oc.control.ocp import OCPSettings, Plan, RestToRest, quasi_stable_guess, quasi_stable_guesses
-from rollbot_oc.dynamics import REDUCED, rest_attitude, to_reduced
+from rollbot_oc.dynamics import REDUCED, to_reduced
 from rollbot_oc.missions import StopMonitor
 from rollbot_oc.params import RollbotParams
-from rollbot_oc.reproducible import dot, norm
+from rollbot_oc.reproducible import norm
 
 __all__ = ["StopsSupervisor", "LegKind"]
 
@@ -42,7 +42,7 @@ class LegKind(Enum):
     """What a segment of the reference is."""
 
     GUESS = "guess"  # a quasi-stable guess, ridden while its leg is planned
-    HOLD = "hold"  # rest where the robot is, until its leg is planned
+    REST = "rest"  # rest where the robot is at a new stop, until its leg is planned
     PLAN = "plan"  # a minimum-time leg to the stop
     STONE = "stone"  # a minimum-time leg to a stepping stone towards the stop
 
@@ -74,6 +74,7 @@ class StopsSupervisor(Supervisor):
         self._anchor = None  # HOLD (and FINISH): the position held, m
         self._rest_state = None  # REST: the rest state its leg is planned from
         self._refine_at = None  # RIDE: when to plan the guess's refinement, s
+        self._finish_braking = None  # FINISH: BRAKE or REST if the robot was being braked (held at rest) then
 
     @property
     def done(self) -> bool:
@@ -144,8 +145,9 @@ class StopsSupervisor(Supervisor):
     def window(self, z, k: int) -> Window:
         s = self.c.settings
         t_now = k * self.c.dt
-        if self.mode in BRAKING:  # rest where the robot is (its motion counts), then hold there
-            held = self.mode is M.REST
+        braking = self.mode if self.mode in BRAKING else self._finish_braking if self.mode is M.FINISH else None
+        if braking is not None:  # rest where the robot is (its motion counts), then hold there
+            held = braking is M.REST
             rest = self._rest_state if held else self._rest(z)
             return Window(np.tile(rest[:, None], (1, s.horizon.N + 1)), np.zeros(s.horizon.N),
                           self._hold_diag if held else self._brake_diag)
@@ -160,20 +162,21 @@ class StopsSupervisor(Supervisor):
 
     def on_give_up(self, z, k: int) -> None:
         if self.mode in MOVING:
-            self._brake(z, k, "the step gave up: max_failures solves failed")
+            self._brake(z, k, "the step gave up: failed with nothing to follow")
+        elif self.mode is M.FINISH and self._finish_braking is None:  # brought to rest where it is, finishing
+            self.c.planner.drop(self.segment, k * self.c.dt)
+            self._finish_braking, self._rest_state, self._anchor = M.BRAKE, None, None
+            self.c.telemetry.brakes += 1
 
     def plans(self) -> list:
         out = []
         for seg, kind in zip(self.reference.segments if self.reference else [], self.kinds):
             if seg is None:
                 continue
-            flag = {"provisional": True} if kind in (LegKind.GUESS, LegKind.HOLD) else \
+            flag = {"provisional": True} if kind in (LegKind.GUESS, LegKind.REST) else \
                 {"stone": True} if kind is LegKind.STONE else {}
             out.append({**seg[0].to_dict(), **flag})
         return out
-
-    def report(self) -> dict:
-        return {"stops": list(self.stops), **super().report()}
 
     # -- legs ----------------------------------------------------------------------------------------
     def _follow_guess(self, z, t_now: float) -> None:
@@ -332,6 +335,7 @@ class StopsSupervisor(Supervisor):
             return
         self.stops.append(self._monitor.record(obs.position))
         if i + 1 >= len(self.c.mission.stops):
+            self._finish_braking = self.mode if self.mode in BRAKING else None  # (held as it was being held)
             self.modes.go(M.FINISH, k, "the last stop reached")
             return
         planner.pop(i)
@@ -341,8 +345,7 @@ class StopsSupervisor(Supervisor):
         self._refine_at = None
         if not (self._fits(planner.get(self.segment), z)
                 and self._take_pending(k, "stop reached: the leg planned ahead fits and takes over")):
-            planner.drop(self.segment, t_now)  # nothing (or nothing that fits) planned ahead: from here
-            self._brake(z, k, "stop reached: no leg planned ahead fits", recovery=False)
+            self._brake(z, k, "stop reached: no leg planned ahead fits", recovery=False)  # (its plans dropped)
 
     def _recover(self, k: int, z, at_rest: bool) -> None:
         """``BRAKE``: once at rest (or after ``brake_wait``), plan a leg from rest (``REST``); ``REST``: follow
@@ -350,30 +353,26 @@ class StopsSupervisor(Supervisor):
         it failed."""
         s, planner = self.c.settings, self.c.planner
         t_now, i = k * self.c.dt, self.segment
+        if self.mode is M.BRAKE:  # (nothing is planned for this stop while braking: ``_brake`` dropped it)
+            if at_rest or t_now - self.modes.since * self.c.dt >= s.recovery.brake_wait - 1e-9:
+                start = self._rest(z)
+                self._launch(i, t_now, None, start)
+                self._rest_state = start  # held there (``weights.hold``) until the leg is ready
+                self.modes.go(M.REST, k, "at rest, or brake_wait has passed: its leg is planned")
+            return
         pending = planner.get(i)
         if pending is not None and pending.plan is not None and pending.is_ready(t_now) and not self._fits(pending, z):
             planner.pop(i)  # it did not stay where its leg starts: brake once more
             self._rest_state = None
             self.modes.go(M.BRAKE, k, "the leg from rest is ready, but the robot moved off its start")
             self.c.telemetry.unfit += 1
-            return
-        if self._take_pending(k, "the leg from rest is ready"):
-            pass
-        elif i in planner.queue:  # still being planned: hold
-            return
-        elif self.mode is M.REST:  # it failed (and was dropped): the quasi-stable guess from here
+        elif self._take_pending(k, "the leg from rest is ready"):
+            self.c.step.restart()
+        elif i not in planner.queue:  # it failed (and was dropped): the quasi-stable guess from here
             self._follow_guess(z, t_now)
             self._rest_state = None
             self.modes.go(M.RIDE, k, "the leg from rest failed: the quasi-stable guess from here")
-        elif at_rest or t_now - self.modes.since * self.c.dt >= s.recovery.brake_wait - 1e-9:
-            start = self._rest(z)
-            self._launch(i, t_now, None, start)
-            self._rest_state = start  # held there (``weights.hold``) until the leg is ready
-            self.modes.go(M.REST, k, "at rest, or brake_wait has passed: its leg is planned")
-            return
-        else:
-            return
-        self.c.step.restart()
+            self.c.step.restart()
 
     def _brake(self, z, k: int, reason: str, recovery: bool = True) -> None:
         """Bring the robot to rest where it is (``weights.brake``) and hold it there while a new leg is planned
@@ -387,28 +386,13 @@ class StopsSupervisor(Supervisor):
             rest[REDUCED.velocity] = 0.0
             hold = Plan(np.array([0.0, h]), rest, np.zeros(1), h, "hold", True, 0, 0.0)
             self.reference.segments[self.segment] = (hold, {"stop": self.c.mission.stops[self.segment]})
-            self.kinds[self.segment] = LegKind.HOLD
+            self.kinds[self.segment] = LegKind.REST
             self.segment_start = t_now
         self._rest_state = None
         self._anchor = None
         self._refine_at = None
         self.c.telemetry.brakes += recovery
         self.modes.go(M.BRAKE, k, reason)
-
-    def _rest(self, z) -> np.ndarray:
-        """The rest state for the reduced state ``z``: where it is, still; with its attitude if that is within
-        ``swung_angle`` of the balanced rest with its motor axis' heading, else (the mass swung up: no state to
-        rest in) that rest, on the estimated floor (``dynamics.rest_attitude``)."""
-        rest = np.array(z, float)
-        rest[REDUCED.velocity] = 0.0
-        q = rest[REDUCED.quaternion]
-        try:
-            balanced = rest_attitude(q, self.c.step.estimator.params())
-        except ValueError:  # no balance on the floor estimated so far: the level floor's
-            balanced = rest_attitude(q, self.c.params.replace(slope=0.0))
-        if _turned(balanced, q) > self.c.settings.recovery.swung_angle:
-            rest[REDUCED.quaternion] = balanced
-        return rest
 
     def _settle(self, Zr, k: int, z) -> None:
         """Past a leg's end within ``hold_radius`` of its stop, hold the robot where it is (``HOLD``): the
@@ -433,9 +417,3 @@ class StopsSupervisor(Supervisor):
 @functools.lru_cache(maxsize=8)
 def _rest_to_rest(params: RollbotParams, settings: OCPSettings, constraints: tuple) -> RestToRest:
     return RestToRest(params, settings, constraints)
-
-
-def _turned(a, b) -> float:
-    """The angle between the attitudes of the quaternions ``a`` and ``b`` (either sign), rad."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    return 2.0 * math.acos(min(abs(dot(a, b)) / (norm(a) * norm(b)), 1.0))

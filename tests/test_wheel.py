@@ -51,6 +51,8 @@ def test_wheel_ships_the_scenarios_and_runs_from_another_folder(tmp_path):
         p.name for p in (ROOT / "problems" / "campaigns").glob("*.toml"))
     assert sorted(p.name for p in (site / "rollbot_oc" / "export" / "c").iterdir()) == sorted(
         p.name for p in (ROOT / "rollbot_oc" / "export" / "c").iterdir())  # the hand-written C of export-c
+    assert sorted(p.name for p in (site / "rollbot_oc" / "robot" / "c").iterdir()) == sorted(
+        p.name for p in (ROOT / "rollbot_oc" / "robot" / "c").iterdir())  # the robot side of the link (C)
 
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()

@@ -1,9 +1,12 @@
 /* rollbot_link.c - the robot link's wire protocol, robot side (see rollbot_link.h).  C99, no heap, no stdio. */
 #include "rollbot_link.h"
 
+#include <float.h>
+#include <math.h>
 #include <string.h>
 
-/* the wire carries IEEE-754 binary64: the target's double must be 8 bytes */
+/* the wire carries IEEE-754 binary64 (times, accelerations) and binary32 (the state): the target's double must
+   be 8 bytes */
 typedef char rl_double_is_64_bits[(sizeof(double) == 8) ? 1 : -1];
 
 /* --- little-endian fields ------------------------------------------------------------------------------ */
@@ -28,6 +31,30 @@ static void put_f64(uint8_t *p, double x) {
         p[i] = (uint8_t)(v & 0xFFu);
         v >>= 8;
     }
+}
+
+static void put_f32(uint8_t *p, double x) {
+    /* round to single precision as the Python side does; beyond its range (where the cast is undefined),
+       infinite */
+    const double lim = (double)FLT_MAX + 10141204801825835211973625643008.0; /* FLT_MAX + 2^103 */
+    float f = (x >= lim) ? HUGE_VALF : (x <= -lim) ? -HUGE_VALF : (x > (double)FLT_MAX) ? FLT_MAX
+              : (x < -(double)FLT_MAX) ? -FLT_MAX : (float)x;
+    uint32_t v;
+    int i;
+    memcpy(&v, &f, sizeof v);
+    for (i = 0; i < 4; i++) {
+        p[i] = (uint8_t)(v & 0xFFu);
+        v >>= 8;
+    }
+}
+
+static double get_f32(const uint8_t *p) {
+    uint32_t v = 0;
+    float x;
+    int i;
+    for (i = 3; i >= 0; i--) v = (v << 8) | p[i];
+    memcpy(&x, &v, sizeof x);
+    return (double)x;
 }
 
 static uint16_t get_u16(const uint8_t *p) {
@@ -120,8 +147,8 @@ static int32_t pack_payload(const rl_message_t *msg, uint8_t *p) {
     case RL_MEASUREMENT:
         put_u32(p, msg->body.measurement.period);
         put_f64(p + 4, msg->body.measurement.time);
-        for (i = 0; i < RL_STATE_SIZE; i++) put_f64(p + 12 + 8 * i, msg->body.measurement.state[i]);
-        return 12 + 8 * RL_STATE_SIZE;
+        for (i = 0; i < RL_STATE_SIZE; i++) put_f32(p + 12 + 4 * i, msg->body.measurement.state[i]);
+        return 12 + 4 * RL_STATE_SIZE;
     case RL_COMMAND:
         put_u32(p, msg->body.command.period);
         put_f64(p + 4, msg->body.command.acceleration);
@@ -156,10 +183,10 @@ static int32_t unpack_payload(const uint8_t *p, size_t n, rl_message_t *msg) {
         msg->body.heartbeat.mode = p[4];
         return RL_OK;
     case RL_MEASUREMENT:
-        if (n != 12 + 8 * RL_STATE_SIZE) return RL_ERR_PAYLOAD;
+        if (n != 12 + 4 * RL_STATE_SIZE) return RL_ERR_PAYLOAD;
         msg->body.measurement.period = get_u32(p);
         msg->body.measurement.time = get_f64(p + 4);
-        for (i = 0; i < RL_STATE_SIZE; i++) msg->body.measurement.state[i] = get_f64(p + 12 + 8 * i);
+        for (i = 0; i < RL_STATE_SIZE; i++) msg->body.measurement.state[i] = get_f32(p + 12 + 4 * i);
         return RL_OK;
     case RL_COMMAND:
         if (n != 13) return RL_ERR_PAYLOAD;

@@ -66,7 +66,8 @@ typedef struct {
 typedef struct {
     uint32_t period;               /* control period index */
     double time;                   /* time of the measurement, s */
-    double state[RL_STATE_SIZE];   /* x, y [m]; qw, qx, qy, qz; wx, wy, wz [rad/s]; theta [rad]; theta_dot [rad/s] */
+    double state[RL_STATE_SIZE];   /* x, y [m]; qw, qx, qy, qz; wx, wy, wz [rad/s]; theta [rad]; theta_dot [rad/s]
+                                      (single precision on the wire) */
 } rl_measurement_t;
 
 typedef struct {

@@ -16,6 +16,8 @@ from rollbot_oc.dynamics import FULL, NZ, REDUCED
 from rollbot_oc.params import PARAM_INDEX, RollbotParams
 from rollbot_oc.problems import load_problem, make_controller, run_problem
 
+from shared import same_problem
+
 PROBLEMS = Path(__file__).parent.parent / "problems"
 # The N-shape's minimum-time bound on its 1 deg slope (s): ``bounds.minimum_time_bound`` on the problem,
 # as ``benchmarks/bench_nmpc.py`` computes it (a regression anchor; it takes a minute to compute).
@@ -34,12 +36,14 @@ def check_real_time(m):
     assert 0 < m["solve_time_min"] <= m["solve_time_median"] <= m["solve_time_p95"] <= m["solve_time_max"]
 
 
-def test_n_shape_faster_than_the_pid_with_real_stops():
+def test_n_shape_faster_than_the_pid_with_real_stops(n_shape_runs):
     """Every stop reached by the true trajectory: within 7 cm and at rest (centre below 5 mm/s, motor below
-    0.05 rad/s) for 0.5 s; the first command within a second, the legs planned as the robot moves."""
-    problem = load_problem(PROBLEMS / "n_shape.toml")
-    nmpc = run_problem(problem, "nmpc").metrics
-    pid = run_problem(problem, "pid").metrics
+    0.05 rad/s) for 0.5 s; the first command within a second, the legs planned as the robot moves.  (The two runs
+    are the session's shared ``n_shape_runs``: the demo's.)"""
+    problem, (pid, nmpc) = n_shape_runs
+    assert same_problem(problem, load_problem(PROBLEMS / "n_shape.toml"))
+    assert (pid.controller, nmpc.controller) == ("pid", "nmpc") and pid.seed == nmpc.seed == 0
+    nmpc, pid = nmpc.metrics, pid.metrics
     assert nmpc["completed"] and len(nmpc["stop_errors"]) == 4
     assert max(nmpc["stop_errors"]) <= 0.07
     assert nmpc["completion_time"] <= pid["completion_time"] / 4

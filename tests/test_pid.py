@@ -15,6 +15,8 @@ from rollbot_oc.problems import load_problem, run_open_loop, run_problem
 from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_state
 from rollbot_oc.simulate import simulate
 
+from shared import same_problem
+
 PROBLEMS = Path(__file__).parent.parent / "problems"
 
 
@@ -28,8 +30,9 @@ def test_circle_tracking_on_the_slope(name):
     assert m["min_normal_force"] > 0 and m["min_slide_margin"] > 0
 
 
-def test_n_shape_stops():
-    run = run_problem(load_problem(PROBLEMS / "n_shape.toml"), "pid")
+def test_n_shape_stops(n_shape_runs):
+    problem, (run, _) = n_shape_runs  # the session's shared PID run (seed 0) of the bundled N-shape
+    assert same_problem(problem, load_problem(PROBLEMS / "n_shape.toml")) and run.controller == "pid"
     m = run.metrics
     assert m["completed"] and len(m["stop_errors"]) == 4
     assert max(m["stop_errors"]) <= 0.07  # paper: every stop within 7 cm

@@ -517,15 +517,17 @@ def test_the_same_seed_gives_the_same_json_under_every_blas_kernel():
 
 
 def test_recovers_from_a_spin_and_a_push():
-    """A 1 rad/s spin mid-leg and a 0.5 m push at the first stop: the NMPC replans from where the robot is and still
-    reaches both stops at rest (without the replanning it never reached the first one in 120 s)."""
+    """A 1 rad/s spin mid-leg and a 0.5 m push before the first stop: the NMPC replans from where the robot is and
+    still reaches the stop at rest (without the replanning it never reached it in 120 s).  The first stop alone
+    (the run is the two-stop run's until then); ``benchmarks/bench_recovery.py`` runs both stops."""
     from rollbot_oc.simulate import Kick
 
     base = load_problem(PROBLEMS / "n_shape.toml")
-    problem = replace(base, mission=base.mission.first(2), duration=60.0)
+    problem = replace(base, mission=base.mission.first(1), duration=60.0)
     kicks = [Kick(3.0, omega=(0.0, 0.0, 1.0)), Kick(10.0, position=(0.5, 0.0))]
     m = run_problem(problem, "nmpc", kicks=kicks).metrics
     assert m["completed"] and max(m["stop_errors"]) <= 0.07 and m["stop_replans"] >= 1
+    assert m["stop_times"][0] > 10.0  # both kicks came before the stop was reached (measured 15.65 s)
     check_plant_limits(m)
 
 

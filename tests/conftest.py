@@ -17,3 +17,7 @@ settings.register_profile("ci", max_examples=25, deadline=None, derandomize=True
 settings.register_profile("nightly", max_examples=1000, deadline=None,
                           suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+# runs several tests share, computed once per session (tests/shared.py)
+from shared import n_shape_pid_run, n_shape_runs, pid_circle_run  # noqa: E402,F401

@@ -33,17 +33,18 @@ def test_structured_linearisation_as_a_graph_is_the_numeric_one():
         assert np.allclose(numeric.reshape(symbolic.shape), symbolic.full(), rtol=1e-12, atol=1e-12)
 
 
-def test_the_exported_filter_is_the_numeric_one():
+def test_the_exported_filter_is_the_numeric_one(n_shape_runs):
     """The step's symbolic tilt filter (``export.step._estimator_update``) against ``TiltEstimator.update`` on the
-    measured attitude (``attitude_gain`` 1), over a recorded stretch of the N-shape: the same tilt and covariance
-    to 1e-12."""
+    measured attitude (``attitude_gain`` 1), over a recorded stretch of the N-shape (its first 3 s under the NMPC,
+    from the session's shared run): the same tilt and covariance to 1e-12."""
     from rollbot_oc.control.nmpc.estimation import TiltEstimator
     from rollbot_oc.dynamics import to_reduced
     from rollbot_oc.export.step import EMBEDDED_SETTINGS as s, _estimator_update, control_step
 
     params = RollbotParams()
-    run = run_problem(load_bundled("n_shape").with_duration(3.0), "nmpc", seed=1)
-    x, u = run.result.x, run.result.command
+    _, (_, run) = n_shape_runs
+    assert run.controller == "nmpc" and run.result.dt == 0.01
+    x, u = run.result.x[:, :301], run.result.command[:300]
     numeric = TiltEstimator(params, 0.01, s.filter.process_noise, s.filter.gyro_sigma, s.filter.model_error,
                             attitude_gain=s.filter.attitude_gain)
     symbolic = _estimator_update(numeric)

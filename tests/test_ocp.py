@@ -113,23 +113,28 @@ def test_waypoint_chain_and_fixed_time_variant():
     assert np.sum(slower.u**2) < np.sum(plans[0].u**2)  # more time, less effort
 
 
-def test_the_fastest_of_several_starts_is_no_slower_than_the_first():
+@pytest.fixture(scope="module")
+def nmpc_leg():
+    """The NMPC's legs' settings, a start and a goal, and the fastest of two starts between them (uncapped)."""
+    settings = OCPSettings(N=40, accel_margin=0.85, expand=True)  # the NMPC's legs
+    start, goal = rest_state(PARAMS, position=(-0.3, -0.3)), [0.0, 0.0]
+    return settings, start, goal, RestToRest(PARAMS, settings).fastest(start, goal, starts=2)
+
+
+def test_the_fastest_of_several_starts_is_no_slower_than_the_first(nmpc_leg):
     """``fastest`` keeps the quickest local optimum; its first start is the single-start guess."""
-    ocp = RestToRest(PARAMS, OCPSettings(N=40, accel_margin=0.85, expand=True))  # the NMPC's legs
-    start = rest_state(PARAMS, position=(-0.3, -0.3))
-    single = ocp.solve(start, [0.0, 0.0])
-    best = ocp.fastest(start, [0.0, 0.0], starts=2)
+    settings, start, goal, best = nmpc_leg
+    assert goal == [0.0, 0.0]
+    single = RestToRest(PARAMS, settings).solve(start, [0.0, 0.0])
     assert best.success and best.T <= single.T + 1e-6
     assert best.iterations >= single.iterations  # the total over the starts
 
 
-def test_failed_starts_resumed_from_where_they_stopped_reach_the_same_plan():
+def test_failed_starts_resumed_from_where_they_stopped_reach_the_same_plan(nmpc_leg):
     """``fastest(resumes=...)``: starts cut off by the iteration limit are solved again from their last
     iterates; the first to converge is the leg the uncapped solver finds, and its iterations count them all.
     Without resumes the same starts fail."""
-    start, goal = rest_state(PARAMS, position=(-0.3, -0.3)), [0.0, 0.0]
-    settings = OCPSettings(N=40, accel_margin=0.85, expand=True)  # the NMPC's legs
-    uncapped = RestToRest(PARAMS, settings).fastest(start, goal, starts=2)
+    settings, start, goal, uncapped = nmpc_leg  # the NMPC's legs
     capped = RestToRest(PARAMS, replace(settings, max_iter=30))
     with pytest.raises(SolveFailed, match="Maximum_Iterations_Exceeded"):
         capped.fastest(start, goal, starts=2)

@@ -15,12 +15,15 @@ from rollbot_oc.problems import load_problem, run_open_loop, run_problem
 from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_state
 from rollbot_oc.simulate import simulate
 
+from shared import same_problem
+
 PROBLEMS = Path(__file__).parent.parent / "problems"
 
 
 @pytest.mark.parametrize("name", ["circle_R020", "circle_R035", "circle_R050", "circle_R065"])
-def test_circle_tracking_on_the_slope(name):
-    run = run_problem(load_problem(PROBLEMS / f"{name}.toml"), "pid")
+def test_circle_tracking_on_the_slope(name, pid_circle_run):
+    run = pid_circle_run(name)  # shared with the slope-drift test below
+    assert same_problem(run.problem, load_problem(PROBLEMS / f"{name}.toml")) and run.seed == 0
     m = run.metrics
     assert m["completed"]
     assert m["avg_deviation"] <= 0.034 and m["max_deviation"] <= 0.15  # the paper's real-world figures
@@ -28,8 +31,9 @@ def test_circle_tracking_on_the_slope(name):
     assert m["min_normal_force"] > 0 and m["min_slide_margin"] > 0
 
 
-def test_n_shape_stops():
-    run = run_problem(load_problem(PROBLEMS / "n_shape.toml"), "pid")
+def test_n_shape_stops(n_shape_pid_run):
+    problem, run = n_shape_pid_run  # the session's shared PID run (seed 0) of the bundled N-shape
+    assert same_problem(problem, load_problem(PROBLEMS / "n_shape.toml")) and run.controller == "pid"
     m = run.metrics
     assert m["completed"] and len(m["stop_errors"]) == 4
     assert max(m["stop_errors"]) <= 0.07  # paper: every stop within 7 cm
@@ -51,11 +55,12 @@ def test_open_loop_problem_matches_the_quasi_stable_theory():
     assert max(abs(r["xi_error"]) for r in out["runs"]) < math.radians(1.0)
 
 
-def test_slope_drift_without_feedback_and_its_removal_by_the_pid():
+def test_slope_drift_without_feedback_and_its_removal_by_the_pid(pid_circle_run):
     sloped = RollbotParams(slope=math.radians(1.0), slope_dir=math.radians(-45))
     measured, _ = open_loop_run(4.0, sloped, duration=90.0)
     assert measured.drift > 0.005  # m/s: half a metre a minute without feedback
-    run = run_problem(load_problem(PROBLEMS / "circle_R035.toml"), "pid")
+    run = pid_circle_run("circle_R035")  # the session's shared run (the circle test's)
+    assert same_problem(run.problem, load_problem(PROBLEMS / "circle_R035.toml")) and run.controller == "pid"
     late = run.result.t > 200.0
     centre_error = np.linalg.norm(run.centres[:, late].mean(axis=1))
     assert centre_error < 0.02  # with the PID the centre of curvature stays put

@@ -1,22 +1,38 @@
 """The main job (rollbot-oc demo), the plot command and the animation."""
 
+import copy
 import json
 
 import numpy as np
 from PIL import Image
 
+from rollbot_oc import problems
 from rollbot_oc.animate import animate_run
 from rollbot_oc.cli import main
 from rollbot_oc.dynamics import rest_state
 from rollbot_oc.simulate import SimulationResult, simulate
 
+from shared import same_problem
+
 FIGURES = ["quasi_stable.png", "eigenvalues.png", "comparison.png", "n_shape_pid_top.png", "n_shape_nmpc_top.png",
            "n_shape_pid_time.png", "n_shape_nmpc_time.png", "n_shape_pid_energy.png", "n_shape_nmpc_energy.png"]
 
 
-def test_demo_writes_the_report_folder(tmp_path, capsys):
+def test_demo_writes_the_report_folder(tmp_path, capsys, monkeypatch, n_shape_runs):
+    """The demo's N-shape comparison is the session's shared ``n_shape_runs`` (the same ``compare`` call on the
+    same problem, computed once for this test and test_nmpc's); everything else the demo computes itself."""
+    problem, runs = n_shape_runs
+    asked = []
+
+    def shared_compare(demo_problem, seed=0, params=None, duration=None, show_progress=None, nmpc_options=None):
+        asked.append(demo_problem)
+        assert same_problem(demo_problem, problem) and (seed, params, duration, nmpc_options) == (0, None, None, None)
+        return copy.deepcopy(runs)
+
+    monkeypatch.setattr(problems, "compare", shared_compare)
     out = tmp_path / "report"
     assert main(["demo", "--quick", "--out", str(out)]) == 0
+    assert len(asked) == 1
     for name in FIGURES + ["comparison.md", "comparison.json", "report.md", "report.json", "openloop.json",
                            "n_shape_pid.npz", "n_shape_nmpc.npz", "n_shape_nmpc.gif"]:
         assert (out / name).stat().st_size > 0, name

@@ -1,0 +1,104 @@
+"""Closed-loop runs that more than one test measures, computed once per test session and shared (read-only).
+
+Under pytest-xdist the first worker to ask computes a run and leaves it pickled in the session's temporary folder,
+behind a lock; the others wait for it and load it, so it is computed once whichever workers run those tests.
+The fixtures are made available to every test module by ``conftest.py``.
+"""
+
+import contextlib
+import os
+import pickle
+from dataclasses import fields, is_dataclass, replace
+
+import numpy as np
+import pytest
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: each worker computes its own
+    fcntl = None
+
+
+_computed: dict = {}  # this process's
+
+
+def _shared(tmp_path_factory, name: str, compute):
+    """``compute()``, or what this process or another worker of this session computed under ``name``."""
+    if name not in _computed:
+        _computed[name] = _compute_once(tmp_path_factory, name, compute)
+    return _computed[name]
+
+
+def _compute_once(tmp_path_factory, name: str, compute):
+    if not os.environ.get("PYTEST_XDIST_WORKER") or fcntl is None:
+        return compute()
+    root = tmp_path_factory.getbasetemp().parent  # the folder the workers' own temporary folders share
+    path = root / f"shared_{name}.pkl"
+    with open(root / f"shared_{name}.lock", "w") as lock, contextlib.ExitStack() as unlock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        unlock.callback(fcntl.flock, lock, fcntl.LOCK_UN)
+        if path.is_file():
+            return pickle.loads(path.read_bytes())
+        value = compute()
+        path.write_bytes(pickle.dumps(value))
+        return value
+
+
+def same_problem(a, b) -> bool:
+    """The same ``Problem`` wherever it was read from (its ``source`` aside), field by field."""
+    return _equal(replace(a, source=""), replace(b, source=""))
+
+
+def _equal(a, b) -> bool:
+    if type(a) is not type(b):
+        return False
+    if is_dataclass(a):
+        return all(_equal(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
+    if isinstance(a, np.ndarray):
+        return a.shape == b.shape and bool(np.array_equal(a, b))
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_equal(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(_equal(x, y) for x, y in zip(a, b))
+    return bool(a == b)
+
+
+@pytest.fixture(scope="session")
+def n_shape_runs(tmp_path_factory):
+    """The bundled N-shape under the PID and the NMPC, seed 0, each run as ``compare`` (and ``rollbot-oc demo``)
+    runs it: ``(problem, [pid, nmpc])``.  Used by test_nmpc, test_export and test_report."""
+    return n_shape_problem(), [n_shape_run(tmp_path_factory, name) for name in ("pid", "nmpc")]
+
+
+@pytest.fixture(scope="session")
+def n_shape_pid_run(tmp_path_factory):
+    """The PID's of ``n_shape_runs`` alone (the NMPC's not computed for it).  Used by test_pid."""
+    return n_shape_problem(), n_shape_run(tmp_path_factory, "pid")
+
+
+def n_shape_problem():
+    from rollbot_oc.scenarios import load_bundled
+
+    return load_bundled("n_shape")
+
+
+def n_shape_run(tmp_path_factory, controller: str):
+    from rollbot_oc.problems import run_problem
+
+    # compare(problem, seed=0) is [run_problem(problem, name, seed=0, params=None, duration=None) for pid, nmpc]
+    return _shared(tmp_path_factory, f"n_shape_{controller}", lambda: run_problem(
+        n_shape_problem(), controller, seed=0, params=None, duration=None, show_progress=False))
+
+
+@pytest.fixture(scope="session")
+def pid_circle_run(tmp_path_factory):
+    """``pid_circle_run(name)``: the bundled circle ``name`` under the PID, seed 0, its whole duration (each run
+    once per session when first asked).  Used by test_pid."""
+    from rollbot_oc.problems import run_problem
+    from rollbot_oc.scenarios import load_bundled
+
+    def run(name: str):
+        return _shared(tmp_path_factory, f"pid_{name}",
+                       lambda: run_problem(load_bundled(name), "pid", show_progress=False))
+
+    return run

@@ -23,14 +23,15 @@ static void put_u32(uint8_t *p, uint32_t v) {
     p[3] = (uint8_t)(v >> 24);
 }
 
+static void put_u64(uint8_t *p, uint64_t v) {
+    put_u32(p, (uint32_t)(v & 0xFFFFFFFFu));
+    put_u32(p + 4, (uint32_t)(v >> 32));
+}
+
 static void put_f64(uint8_t *p, double x) {
     uint64_t v;
-    int i;
     memcpy(&v, &x, sizeof v);
-    for (i = 0; i < 8; i++) {
-        p[i] = (uint8_t)(v & 0xFFu);
-        v >>= 8;
-    }
+    put_u64(p, v);
 }
 
 static void put_f32(uint8_t *p, double x) {
@@ -40,21 +41,8 @@ static void put_f32(uint8_t *p, double x) {
     float f = (x >= lim) ? HUGE_VALF : (x <= -lim) ? -HUGE_VALF : (x > (double)FLT_MAX) ? FLT_MAX
               : (x < -(double)FLT_MAX) ? -FLT_MAX : (float)x;
     uint32_t v;
-    int i;
     memcpy(&v, &f, sizeof v);
-    for (i = 0; i < 4; i++) {
-        p[i] = (uint8_t)(v & 0xFFu);
-        v >>= 8;
-    }
-}
-
-static double get_f32(const uint8_t *p) {
-    uint32_t v = 0;
-    float x;
-    int i;
-    for (i = 3; i >= 0; i--) v = (v << 8) | p[i];
-    memcpy(&x, &v, sizeof x);
-    return (double)x;
+    put_u32(p, v);
 }
 
 static uint16_t get_u16(const uint8_t *p) {
@@ -66,12 +54,17 @@ static uint32_t get_u32(const uint8_t *p) {
 }
 
 static double get_f64(const uint8_t *p) {
-    uint64_t v = 0;
+    uint64_t v = (uint64_t)get_u32(p) | ((uint64_t)get_u32(p + 4) << 32);
     double x;
-    int i;
-    for (i = 7; i >= 0; i--) v = (v << 8) | p[i];
     memcpy(&x, &v, sizeof x);
     return x;
+}
+
+static double get_f32(const uint8_t *p) {
+    uint32_t v = get_u32(p);
+    float x;
+    memcpy(&x, &v, sizeof x);
+    return (double)x;
 }
 
 /* --- CRC-32 and COBS ------------------------------------------------------------------------------------ */

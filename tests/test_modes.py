@@ -98,13 +98,26 @@ def test_the_last_stop_reached_while_braking_is_held_at_rest(n_shape_nmpc):
     x = problem.initial_state()
     obs = Observation(0.6, x[:2], x[2:6], x[6:9], float(x[9]), float(x[10]))
     sup._leave_stop(60, obs, z)
-    assert sup.mode is StopsMode.FINISH
+    assert sup.mode is StopsMode.FINISH_AT_REST
     window = sup.window(z, 60)
     assert np.array_equal(window.diag, s.weights.brake.diagonal(s.horizon.N))
     assert np.allclose(window.Zr[:2], z[:2, None]) and np.allclose(window.Zr[6:], 0.0)  # rest where it is
-    # finishing from a leg (not braking): a give-up brings it to rest, counted once
-    sup._finish_braking, brakes = None, nmpc.telemetry.brakes
+    # finishing from a leg (not braking): a give-up brings it to rest, counted once; finish_hold counts from the
+    # stop reached, not from the give-up
+    sup.reset()
+    sup.prepare(problem.initial_state(), None)
+    sup._monitor = StopMonitor(problem.mission.stops[0], problem.mission.stop_rule)
+    sup._monitor.since = 0.5
+    sup._leave_stop(60, obs, z)
+    assert sup.mode is StopsMode.FINISH
+    brakes = nmpc.telemetry.brakes
     sup.on_give_up(z, 70)
-    assert sup._finish_braking is StopsMode.BRAKE and nmpc.telemetry.brakes == brakes + 1
+    assert sup.mode is StopsMode.FINISH_AT_REST and nmpc.telemetry.brakes == brakes + 1
+    assert np.array_equal(sup.window(z, 70).diag, s.weights.brake.diagonal(s.horizon.N))
     sup.on_give_up(z, 75)
     assert nmpc.telemetry.brakes == brakes + 1  # already at rest: no second brake
+    done_at = 60 + round(s.arrival.finish_hold / nmpc.dt)
+    sup.advance(done_at - 5, obs, False, z)
+    assert sup.mode is StopsMode.FINISH_AT_REST
+    sup.advance(done_at, obs, False, z)
+    assert sup.mode is StopsMode.DONE

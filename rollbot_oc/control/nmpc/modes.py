@@ -35,6 +35,8 @@ class StopsMode(_Mode):
     BRAKE = ("brake", "brought to rest where it is (off its plan, or a new stop with no leg that fits)")
     REST = ("rest", "held at rest while its leg from there is planned")
     FINISH = ("finish", "the last stop reached: held there ``arrival.finish_hold``")
+    FINISH_AT_REST = ("finish at rest", "the last stop reached while being brought to rest, or the step gave up "
+                      "while finishing: kept at rest there until ``arrival.finish_hold`` has passed")
     DONE = ("done", "the mission is done")
 
 
@@ -86,8 +88,10 @@ TRANSITIONS = {
         *[(m, S.TRACK, "stop reached: the leg planned ahead fits and takes over")
           for m in (S.RIDE, S.TRACK, S.HOLD, S.BRAKE, S.REST)],
         *[(m, S.BRAKE, "stop reached: no leg planned ahead fits") for m in (S.RIDE, S.TRACK, S.HOLD, S.BRAKE, S.REST)],
-        *[(m, S.FINISH, "the last stop reached") for m in (S.RIDE, S.TRACK, S.HOLD, S.BRAKE, S.REST)],
-        (S.FINISH, S.DONE, "finish_hold has passed"),
+        *[(m, S.FINISH, "the last stop reached") for m in (S.RIDE, S.TRACK, S.HOLD)],
+        *[(m, S.FINISH_AT_REST, "the last stop reached") for m in (S.BRAKE, S.REST)],
+        (S.FINISH, S.FINISH_AT_REST, "the step gave up: failed with nothing to follow"),
+        *[(m, S.DONE, "finish_hold has passed") for m in (S.FINISH, S.FINISH_AT_REST)],
         *[(m, S.BRAKE, "off the plan by more than replan_distance") for m in (S.RIDE, S.TRACK, S.HOLD)],
         *[(m, S.BRAKE, "at rest outside the stop's tolerance hold_time after the leg's end")
           for m in (S.RIDE, S.TRACK, S.HOLD)],
@@ -172,6 +176,15 @@ class ModeMachine:
                                f"for {reason!r}")
         self.mode, self.since = target, tick
         self.timeline.append(ModeChange(target, tick, reason))
+
+    def since_within(self, *modes) -> int:
+        """The tick since which the machine has stayed among ``modes`` (the current mode one of them)."""
+        tick = self.since
+        for change in reversed(self.timeline):
+            if change.mode not in modes:
+                break
+            tick = change.tick
+        return tick
 
     def report(self, dt: float) -> list:
         """The timeline as ``[{"mode", "t", "reason"}, ...]`` (``dt``: the control period, s)."""

@@ -108,7 +108,7 @@ class TrackingStep:
         self.previous = None
         self.failures = 0
         self.until = -1.0  # RAMP and PID: when the fallback's time is over, s
-        self._ramp = None  # RAMP: (start, s; driving speed, rad/s) of the speed ramp
+        self._ramp = None  # RAMP's data: (start, s; driving speed, rad/s) of the speed ramp
         self._pid_fresh = True
         self._pid_goal = None
         self.estimator.reset()
@@ -241,24 +241,28 @@ class TrackingStep:
 
     def issue(self, k: int, accel: float) -> Command:
         """Command ``accel`` (rad/s^2) at tick ``k`` and remember it."""
-        self.commands[k] = accel
-        self.commands.pop(k - HISTORY, None)
+        self._remember(k, accel)
         return Command(accel=accel)
 
     def fallback_command(self, k: int, obs: Observation, z, goal: int) -> Command:
         """RAMP: the motor's speed on its ramp to zero; PID: the paper's PID towards the mission's target
         ``goal`` (``Mission.leg``); both as a speed command, remembered as the acceleration the predicted
         driving speed needs."""
-        if self._ramp is None:
+        if self.modes.mode is StepMode.PID:
             speed = self._pid_speed(obs, z, goal)
         else:
             t0, speed0 = self._ramp
             speed = math.copysign(max(0.0, abs(speed0) - self.settings.recovery.brake_accel * (k * self.dt - t0)),
                                   speed0)
         limit = self.params.max_accel  # the plant's motor cannot follow faster either
-        self.commands[k] = float(np.clip((speed - float(z[REDUCED.theta_dot])) / self.dt, -limit, limit))
-        self.commands.pop(k - HISTORY, None)
+        self._remember(k, float(np.clip((speed - float(z[REDUCED.theta_dot])) / self.dt, -limit, limit)))
         return Command(speed=speed)
+
+    def _remember(self, k: int, accel: float) -> None:
+        """The acceleration commanded at tick ``k``, rad/s^2, for the filter and the delay compensation (the last
+        ``HISTORY`` periods kept)."""
+        self.commands[k] = accel
+        self.commands.pop(k - HISTORY, None)
 
     def _pid_speed(self, obs: Observation, z, goal: int) -> float:
         """The paper's PID on the mission's target ``goal``, taking over smoothly from the current driving speed."""

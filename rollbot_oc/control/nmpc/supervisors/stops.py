@@ -9,7 +9,8 @@ passed.  Past a leg's end near its stop the robot is held where it arrived (``HO
 reached (``StopRule``), onto the leg planned ahead if it starts where the robot is.  A robot off its plan,
 at rest away from its stop, or whose step gave up, is brought to rest (``BRAKE``) and held there
 (``REST``) while a new leg is planned from rest (the fastest of ``planner.starts``; to a stepping stone if
-the stop cannot be planned).  After the last stop it is held ``arrival.finish_hold`` (``FINISH``).
+the stop cannot be planned).  After the last stop it is held ``arrival.finish_hold`` (``FINISH``; ``FINISH_AT_REST`` if it
+reached the stop while being brought to rest, or its step gave up meanwhile).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ __all__ = ["StopsSupervisor", "LegKind"]
 M = StopsMode
 MOVING = (M.RIDE, M.TRACK, M.HOLD)
 BRAKING = (M.BRAKE, M.REST)
+FINISHING = (M.FINISH, M.FINISH_AT_REST)
 
 
 class LegKind(Enum):
@@ -74,7 +76,6 @@ class StopsSupervisor(Supervisor):
         self._anchor = None  # HOLD (and FINISH): the position held, m
         self._rest_state = None  # REST: the rest state its leg is planned from
         self._refine_at = None  # RIDE: when to plan the guess's refinement, s
-        self._finish_braking = None  # FINISH: BRAKE or REST if the robot was being braked (held at rest) then
 
     @property
     def done(self) -> bool:
@@ -106,8 +107,8 @@ class StopsSupervisor(Supervisor):
         t_now, i = k * self.c.dt, self.segment
         if self.mode is M.DONE:
             return
-        if self.mode is M.FINISH:  # the last stop is reached: hold there a little longer
-            if t_now >= self.modes.since * self.c.dt + s.arrival.finish_hold - 1e-9:
+        if self.mode in FINISHING:  # the last stop is reached: hold there a little longer
+            if t_now >= self.modes.since_within(*FINISHING) * self.c.dt + s.arrival.finish_hold - 1e-9:
                 self.modes.go(M.DONE, k, "finish_hold has passed")
             return
         if self._refine_at is not None and t_now >= self._refine_at - 1e-9:
@@ -145,9 +146,9 @@ class StopsSupervisor(Supervisor):
     def window(self, z, k: int) -> Window:
         s = self.c.settings
         t_now = k * self.c.dt
-        braking = self.mode if self.mode in BRAKING else self._finish_braking if self.mode is M.FINISH else None
-        if braking is not None:  # rest where the robot is (its motion counts), then hold there
-            held = braking is M.REST
+        if self.mode in BRAKING + (M.FINISH_AT_REST,):  # rest where the robot is (its motion counts), or hold
+            # at the rest its leg is planned from (REST; FINISH_AT_REST entered from REST keeps that rest)
+            held = self.mode is M.REST or (self.mode is M.FINISH_AT_REST and self._rest_state is not None)
             rest = self._rest_state if held else self._rest(z)
             return Window(np.tile(rest[:, None], (1, s.horizon.N + 1)), np.zeros(s.horizon.N),
                           self._hold_diag if held else self._brake_diag)
@@ -163,10 +164,11 @@ class StopsSupervisor(Supervisor):
     def on_give_up(self, z, k: int) -> None:
         if self.mode in MOVING:
             self._brake(z, k, "the step gave up: failed with nothing to follow")
-        elif self.mode is M.FINISH and self._finish_braking is None:  # brought to rest where it is, finishing
+        elif self.mode is M.FINISH:  # brought to rest where it is while finishing
             self.c.planner.drop(self.segment, k * self.c.dt)
-            self._finish_braking, self._rest_state, self._anchor = M.BRAKE, None, None
+            self._rest_state, self._anchor = None, None
             self.c.telemetry.brakes += 1
+            self.modes.go(M.FINISH_AT_REST, k, "the step gave up: failed with nothing to follow")
 
     def plans(self) -> list:
         out = []
@@ -335,8 +337,7 @@ class StopsSupervisor(Supervisor):
             return
         self.stops.append(self._monitor.record(obs.position))
         if i + 1 >= len(self.c.mission.stops):
-            self._finish_braking = self.mode if self.mode in BRAKING else None  # (held as it was being held)
-            self.modes.go(M.FINISH, k, "the last stop reached")
+            self.modes.go(M.FINISH_AT_REST if self.mode in BRAKING else M.FINISH, k, "the last stop reached")
             return
         planner.pop(i)
         self.segment += 1

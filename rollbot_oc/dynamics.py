@@ -57,6 +57,7 @@ from rollbot_oc.rotations import (
 __all__ = [
     "STATE_NAMES", "STATE_UNITS", "NX", "NU", "NW", "POS", "QUAT", "OMEGA", "THETA", "THETA_DOT",
     "PointMass", "ShellDynamics", "shell_dynamics", "pendulum_mass", "gravity_vector", "rk4", "motor_speed_clip",
+    "motor_accel_limits",
     "SymbolicModel", "symbolic_model", "RollbotModel", "rest_state", "rest_attitude", "imbalance",
     "NZ", "REDUCED_NAMES", "ReducedModel", "reduced_model", "to_reduced", "from_reduced",
     "StateSlices", "FULL", "REDUCED",
@@ -314,6 +315,21 @@ def _rollbot_terms(x, u, p, w):
                 energy=kinetic + potential, power=power, P=P)
 
 
+def motor_accel_limits(tau_m, u, P):
+    """The motor accelerations (rad/s^2) the torque and acceleration limits allow, ``(lower, upper)``.
+
+    The torque ``tau_m`` (N m, symbolic) is affine in the motor acceleration ``u``:
+    ``tau = tau0 + b u`` with ``b > 0`` (the pendulum's effective inertia), so the
+    torque limit ``|tau| <= P.max_torque`` is an interval of ``u``, intersected
+    with ``|u| <= P.max_accel`` (``P`` a ``ParamView``).
+    """
+    tau0 = ca.substitute(tau_m, u, ca.DM.zeros(NU))
+    b = ca.jacobian(tau_m, u)
+    lower = ca.fmax(-P.max_accel, (-P.max_torque - tau0) / b)
+    upper = ca.fmin(P.max_accel, (P.max_torque - tau0) / b)
+    return lower, upper
+
+
 @functools.lru_cache(maxsize=None)
 def symbolic_model() -> SymbolicModel:
     """Build (once per process) and return Rollbot's CasADi Functions."""
@@ -331,12 +347,7 @@ def symbolic_model() -> SymbolicModel:
     energy = ca.Function("rollbot_energy", [x, p], [terms["energy"]], ["x", "p"], ["E"])
     power = ca.Function("rollbot_power", ins, [terms["power"]], names, ["power"])
 
-    # The torque is affine in the motor acceleration: tau = tau0 + b * u, b > 0
-    # (the pendulum's effective inertia), so the torque limit is an interval of u.
-    tau0 = ca.substitute(terms["tau_m"], u, ca.DM.zeros(NU))
-    b = ca.jacobian(terms["tau_m"], u)
-    lower = ca.fmax(-P.max_accel, (-P.max_torque - tau0) / b)
-    upper = ca.fmin(P.max_accel, (P.max_torque - tau0) / b)
+    lower, upper = motor_accel_limits(terms["tau_m"], u, P)
     accel_bounds = ca.Function("rollbot_accel_bounds", [x, p, w], [ca.vertcat(lower, upper)],
                                ["x", "p", "w"], ["bounds"])
     u_sat = ca.fmin(ca.fmax(u, lower), upper)

@@ -431,6 +431,9 @@ class SimulationResult:
     estimation : onboard.EstimationRecord or None
         With onboard sensing: the estimate at every control step, its
         uncertainty and the sensors' true biases.
+    contact : floor_plant.ContactRecord or None
+        On a floor that can slip (``floor_plant``): the contact's modes, slip
+        and transitions; None on the no-slip plant's rigid floor.
     """
 
     params: RollbotParams
@@ -444,6 +447,7 @@ class SimulationResult:
     step_times: np.ndarray | None = None
     info: dict = field(default_factory=dict)
     estimation: object = None
+    contact: object = None
 
     @property
     def position(self) -> np.ndarray:
@@ -607,7 +611,7 @@ def _first_events(t: np.ndarray, diag: np.ndarray) -> list[Event]:
 def simulate(x0, duration: float, *, params: RollbotParams | None = None, controller: Controller | None = None,
              speed=None, accel=None, dt: float = 0.01, substeps: int = 2, method: str = "rk4",
              sensor: Sensor | None = None, wrench=None, stop_on_event: bool = True,
-             progress=None, kicks=()) -> SimulationResult:
+             progress=None, kicks=(), floor=None) -> SimulationResult:
     """Simulate Rollbot's full nonlinear dynamics, open loop or under a controller.
 
     Parameters
@@ -648,12 +652,24 @@ def simulate(x0, duration: float, *, params: RollbotParams | None = None, contro
     kicks : sequence of Kick
         Closed loop: sudden disturbances of the true state (a push, a spin),
         applied at the start of the period that holds their time.
+    floor : floor.Floor, optional
+        The floor; None or ``Floor()`` is the rigid floor of the no-slip
+        model (this function's own path).  Any other floor is simulated with
+        Coulomb contact by ``floor_plant.simulate_on_floor`` (``substeps``
+        at least ``floor_plant.MIN_SUBSTEPS``; ``x0`` may then hold the
+        centre's velocity too).
 
     Returns
     -------
     SimulationResult
     """
     params = params or RollbotParams()
+    if floor is not None and not floor.rigid:
+        from rollbot_oc.floor_plant import simulate_on_floor
+
+        return simulate_on_floor(x0, duration, params=params, floor=floor, controller=controller, speed=speed,
+                                 accel=accel, dt=dt, substeps=substeps, method=method, sensor=sensor, wrench=wrench,
+                                 stop_on_event=stop_on_event, progress=progress, kicks=kicks)
     x0 = _check_state(x0)
     if not (math.isfinite(duration) and duration > 0):
         raise ValueError(f"simulate: duration = {duration!r} must be a finite time > 0 s")

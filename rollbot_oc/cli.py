@@ -555,6 +555,9 @@ def _one_line_warnings():
 
     with warnings.catch_warnings():
         warnings.showwarning = show
+        from rollbot_oc.floor import RollbotDeprecationWarning
+
+        warnings.simplefilter("default", RollbotDeprecationWarning)  # the user's settings that have moved
         yield
 
 

@@ -85,31 +85,41 @@ def _terms(X, u, p, w, fl, d, mode: int, hold=0) -> dict:
     roll = ca.vertcat(omega[0], omega[1], 0)
     roll_rate = ca.sqrt(omega[0] ** 2 + omega[1] ** 2)
 
-    omega_dot, accel, N = ca.SX.sym("omega_dot", 3), ca.SX.sym("accel", 3), ca.SX.sym("N", 3)
-    y = ca.vertcat(omega_dot, accel, N)
     r = ca.mtimes(T, q.position)
     v_rel = ca.mtimes(T, q.velocity)
     h = ca.cross(omega, ca.cross(omega, r)) + 2 * ca.cross(omega, v_rel) + ca.mtimes(T, q.acceleration)
-    a_mass = accel + ca.cross(omega_dot, r) + h
-    F = q.mass * (a_mass - gravity)  # force the shell exerts on the mass
     damping = -P.k0 * omega
-    resistance = -c_rr * N[2] * roll / ca.fmax(roll_rate, ROLL_EPS)
     floor_damping = -c_d * roll
-    torque = damping + ext_torque + resistance + floor_damping
-    residual = [
-        P.M * accel - P.M * gravity - N - force + F,  # the shell, translation
-        P.I * omega_dot - ca.cross(-Rz, N) - torque + ca.cross(r, F),  # the shell, rotation about its centre
-    ]
+
+    def mass_force(omega_dot, accel):
+        """The force the shell exerts on the mass, N (Newton's law for the mass)."""
+        return q.mass * (accel + ca.cross(omega_dot, r) + h - gravity)
+
     if mode == STICK:
-        residual.append(accel - ca.cross(omega_dot, Rz))
+        # unknowns: omega_dot; the centre follows the rolling constraint and the ground force is what
+        # Newton's law for the shell then needs
+        omega_dot = ca.SX.sym("omega_dot", 3)
+        y = omega_dot
+        accel = ca.cross(omega_dot, Rz)
+        F = mass_force(omega_dot, accel)
+        N = P.M * accel - P.M * gravity - force + F
+        extra = []
     else:
-        residual.append(ca.vertcat(accel[2], N[0] + mu * N[2] * direction[0], N[1] + mu * N[2] * direction[1]))
-    residual = ca.vertcat(*residual)
+        # unknowns: omega_dot, the centre's acceleration along the floor, the normal force; friction is Coulomb's
+        omega_dot, a_t, N_z = ca.SX.sym("omega_dot", 3), ca.SX.sym("a_t", 2), ca.SX.sym("N_z")
+        y = ca.vertcat(omega_dot, a_t, N_z)
+        accel = ca.vertcat(a_t, 0)
+        F = mass_force(omega_dot, accel)
+        N = ca.vertcat(-mu * N_z * direction[0], -mu * N_z * direction[1], N_z)
+        extra = [P.M * accel - P.M * gravity - N - force + F]  # Newton's law for the shell
+    resistance = -c_rr * N[2] * roll / ca.fmax(roll_rate, ROLL_EPS)
+    torque = damping + ext_torque + resistance + floor_damping
+    residual = ca.vertcat(*extra, P.I * omega_dot - ca.cross(-Rz, N) - torque + ca.cross(r, F))  # Euler's law
     A = ca.jacobian(residual, y)
-    b = ca.substitute(residual, y, ca.DM.zeros(9))
+    b = ca.substitute(residual, y, ca.DM.zeros(y.numel()))
     sol = ca.solve(A, -b)
     subs = lambda e: ca.substitute(e, y, sol)  # noqa: E731
-    omega_dot_s, accel_s, N_s = sol[0:3], sol[3:6], sol[6:9]
+    omega_dot_s, accel_s, N_s = sol[0:3], subs(accel), subs(N)
     F_s = subs(F)
     xdot = ca.vertcat(v[0:2], quat_derivative(X[QUAT], omega), omega_dot_s, X[THETA_DOT], u[0], accel_s[0:2])
     motor_axis = ca.mtimes(T, _EZ)

@@ -16,10 +16,14 @@ is checked (``ContactModel.step``):
   negative; sliding starts opposite to the friction force the contact
   needed there;
 * slide -> stick where the slip velocity's component along the step's
-  starting slip direction reaches zero (the slip velocity is then set to
-  exactly zero, a change of the order of the root finder's tolerance); if
-  sticking would need more friction than the cone holds, the contact
-  slides on at once.
+  starting slip direction reaches zero, in the step (friction held along
+  that direction, ``ContactModel.step``'s ``hold``) whose RK4 stages reach
+  the slip's end.  The slip velocity is then set to exactly zero: on a
+  straight slip the change is of the root finder's tolerance; a slip that
+  turns as it ends leaves a residual across the direction, stopped by a
+  friction impulse whose energy is recorded (``ContactRecord.stick_losses``).
+  If sticking would need more friction than the cone holds, the contact
+  slides on at once, in the direction its slip accelerates.
 
 The event time inside the step is found by regula falsi (Illinois) on the
 RK4 step's length to ``EVENT_TOL`` s, and the step is completed from there in
@@ -53,7 +57,7 @@ __all__ = ["ContactRecord", "simulate_on_floor", "MIN_SUBSTEPS", "EVENT_TOL"]
 
 MIN_SUBSTEPS = 8
 EVENT_TOL = 1e-12  # s: the located transition time's bracket
-_MAX_SWITCHES = 8  # mode changes within one RK4 step before the contact is left sliding
+_MAX_SWITCHES = 8  # mode changes within one RK4 step before the contact is left as it is
 
 
 @dataclass
@@ -74,6 +78,10 @@ class ContactRecord:
         the contact point in each period.
     transitions : list of (float, str)
         Time (s) and new mode (``"slide"``, ``"stick"``) of each transition.
+    stick_losses : list of (float, float)
+        Time (s) of each return to sticking and the kinetic energy (J) taken by
+        stopping the slip left there (across the slip's direction; see
+        ``floor_plant``).
     time_sliding : float
         Total time spent sliding, s (transition times located inside the steps).
     max_slip_speed : float
@@ -86,6 +94,7 @@ class ContactRecord:
     slip: np.ndarray
     floor_values: np.ndarray
     transitions: list = field(default_factory=list)
+    stick_losses: list = field(default_factory=list)
     time_sliding: float = 0.0
     max_slip_speed: float = 0.0
 
@@ -108,6 +117,9 @@ class _Plant:
         model = contact_model()
         self.step = [FastFunction(f) for f in model.step]
         self.diag = [FastFunction(f) for f in model.diag]
+        self.rhs_slide = FastFunction(model.rhs[SLIDE])
+        self.energy = FastFunction(model.energy)
+        self.stick_losses = []
         self.params, self.floor, self.dt, self.w = params, floor, dt, w
         self.p = params.vector()
         self.h = dt / max(substeps, MIN_SUBSTEPS)
@@ -127,26 +139,51 @@ class _Plant:
         u, tau, N, margins, _ = (np.array(v) for v in self.diag[self.mode](X, a, self.p, self.w, fl,
                                                                            self.direction))
         if self.mode == STICK and margins[1] < 0 and margins[0] > 0:
-            self._to_slide(N, self.t)
+            self._to_slide(X, a, fl, N, self.t)
             u, tau, N, margins, _ = (np.array(v) for v in self.diag[SLIDE](X, a, self.p, self.w, fl,
                                                                            self.direction))
         return np.concatenate([u, tau, N, margins])
 
-    def _to_slide(self, N, t):
+    def _to_slide(self, X, a, fl, N, t):
+        """Start sliding: the slip grows along ``d``, the direction in which friction along ``-d`` accelerates it.
+
+        From the direction opposite to the friction force sticking needed, a fixed-point iteration
+        ``d <- slip acceleration / |slip acceleration|`` (the contact's effective mass need not be isotropic).
+        """
         tangential = np.asarray(N[:2], float)
         size = math.hypot(*tangential)
-        self.direction = -tangential / size if size > 0 else self.direction
+        d = -tangential / size if size > 0 else self.direction
+        R = self.params.R
+        for _ in range(8):
+            Xdot = np.array(self.rhs_slide(X, a, self.p, self.w, fl, d)[0])
+            slip_accel = Xdot[VEL] - np.array([Xdot[OMEGA.start + 1] * R, -Xdot[OMEGA.start] * R])
+            size = math.hypot(*slip_accel)
+            if size == 0:
+                break
+            new = slip_accel / size
+            if np.abs(new - d).max() < 1e-12:
+                d = new
+                break
+            d = new
+        self.direction = d
         self.mode = SLIDE
         self.transitions.append((t, "slide"))
 
     def _to_stick(self, X, a, fl, t) -> np.ndarray:
+        """Stick: the slip left where its component along the step's direction vanished is stopped at once.
+
+        That residual (across the direction, from the slip's turning within the step) is stopped by a
+        friction impulse at the contact; the kinetic energy it takes is recorded in ``stick_losses``.
+        """
+        before = float(self.energy(X, self.p)[0][0])
         X = X.copy()
         X[VEL] = _rolling_velocity(X, self.params.R)
+        self.stick_losses.append((t, before - float(self.energy(X, self.p)[0][0])))
         self.mode = STICK
         self.transitions.append((t, "stick"))
         _, _, N, margins, _ = self.diag[STICK](X, a, self.p, self.w, fl, self.direction)
         if margins[1] < 0 and margins[0] > 0:  # sticking needs more than the cone holds: slide on
-            self._to_slide(np.array(N), t)
+            self._to_slide(X, a, fl, np.array(N), t)
         return X
 
     def _event(self, X, a, fl, tau, hold=0.0):
@@ -187,33 +224,35 @@ class _Plant:
         for _ in range(self.n):
             left, switches = self.h, 0
             while left > 0:
-                hold = 0.0
+                length, hold = left, 0.0
                 if self.mode == SLIDE:
                     slip = self.slip(X)
                     speed = math.hypot(*slip)
                     if speed > SLIP_TINY:
                         self.direction = slip / speed
-                X_end, events = self.step[self.mode](X, a, self.p, self.w, fl, self.direction, left, hold)
+                X_end, events = self.step[self.mode](X, a, self.p, self.w, fl, self.direction, length, hold)
                 X_end, g = np.array(X_end), float(events[1])
                 if self.mode == SLIDE and min(g, float(events[2])) <= 0:
                     # the slip ends in this step: friction held along the start's direction, the end located
                     hold = 1.0
-                    X_end, events = self.step[SLIDE](X, a, self.p, self.w, fl, self.direction, left, hold)
+                    X_end, events = self.step[SLIDE](X, a, self.p, self.w, fl, self.direction, length, hold)
                     X_end, g = np.array(X_end), float(events[1])
                 crossed = g < 0 if self.mode == STICK else g <= 0
                 if not crossed or switches >= _MAX_SWITCHES:
-                    self._advance(left)
+                    self._advance(length)
                     X = X_end
-                    break
-                tau, X = self._locate(X, a, fl, left, g, hold)
+                    left -= length
+                    continue
+                tau, X = self._locate(X, a, fl, length, g, hold)
                 self._advance(tau)
                 left -= tau
                 switches += 1
                 if self.mode == STICK:
                     _, _, N, _, _ = self.diag[STICK](X, a, self.p, self.w, fl, self.direction)
-                    self._to_slide(np.array(N), self.t)
+                    self._to_slide(X, a, fl, np.array(N), self.t)
                 else:
                     X = self._to_stick(X, a, fl, self.t)
+                self.max_slip = max(self.max_slip, float(np.hypot(*self.slip(X))))
             self.max_slip = max(self.max_slip, float(np.hypot(*self.slip(X))))
         q = X[2:6]
         X[2:6] = q / np.linalg.norm(q)
@@ -329,7 +368,8 @@ def simulate_on_floor(x0, duration: float, *, params: RollbotParams, floor: Floo
     R = params.R
     rolling = np.array([X[OMEGA.start + 1, :end + 1] * R, -X[OMEGA.start, :end + 1] * R])
     record = ContactRecord(floor, modes[:end + 1], X[VEL, :end + 1].copy(), X[VEL, :end + 1] - rolling,
-                           floor_values[:, :end], plant.transitions, plant.time_sliding, plant.max_slip)
+                           floor_values[:, :end], plant.transitions, plant.stick_losses, plant.time_sliding,
+                           plant.max_slip)
     if not closed and speed is None:
         speed_cmd = np.full(steps, np.nan)
     info = _controller_info(controller) if closed else {}

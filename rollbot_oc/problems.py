@@ -16,6 +16,8 @@ Schema (TOML; SI units, degrees only in keys ending in ``_deg``)::
     [floor]                              # optional: the floor the plant rolls on
     slope_deg     = 1.0
     slope_dir_deg = -45.0                # downhill direction
+    mu            = 0.5                  # friction; with rolling_resistance (m), damping (N m s) and
+                                         # [[floor.patches]] the shell may slide (rollbot_oc.floor)
 
     [<kind>]                             # required: the mission's table, its schema in its module:
                                          # rollbot_oc.missions.circle ([circle]: centre, radius, ...),
@@ -74,6 +76,7 @@ import numpy as np
 from rollbot_oc.dynamics import rest_state
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.estimation import EstimatorSettings
+from rollbot_oc.floor import FLOOR_KEYS, Floor, floor_from_table
 from rollbot_oc.onboard import OnboardSensing
 from rollbot_oc.missions import KINDS, REACH_HOLD, Mission, centre_of_curvature, mission_kind
 from rollbot_oc.missions.schema import check_keys as _check_keys
@@ -96,7 +99,7 @@ DURATION_RANGE = (1.0, 3600.0)  # s: a run's length, from a problem file or an o
 _COMMON_KEYS = {"name", "description", "kind", "duration", "dt", "start", "floor", "sensor", "params"}
 _TABLE_KEYS = {  # the common tables; each mission kind's table has its own keys (``Mission.keys``)
     "start": {"position", "heading_deg"},
-    "floor": {"slope_deg", "slope_dir_deg"},
+    "floor": set(FLOOR_KEYS),
     "sensor": {"mode", "position_noise", "angle_noise", "gyro_noise", "speed_noise", "latency", "encoder_counts",
                "imu", "mocap"},
 }
@@ -131,6 +134,10 @@ class Problem:
         motion-capture models.
     source : str
         Where the problem came from (file path).
+    floor : Floor
+        What the floor adds to the no-slip model (Coulomb contact, rolling
+        resistance, damping, patches); ``Floor()`` without ``[floor]`` keys
+        beyond the slope.  Its friction coefficient is ``params.mu``.
     """
 
     name: str
@@ -145,6 +152,7 @@ class Problem:
     sensor: dict = field(default_factory=dict)
     sensing: SensingConfig = field(default_factory=SensingConfig)
     source: str = "<problem>"
+    floor: Floor = field(default_factory=Floor)
 
     def initial_state(self) -> np.ndarray:
         """The start state: at rest at ``start_position`` with heading ``start_heading``."""
@@ -229,7 +237,7 @@ def problem_from_dict(data: dict, source: str = "<problem>", base: RollbotParams
         raise ConfigError(f"{source}: missing required key 'duration'")
     duration = check_duration(data["duration"], f"{source}: key 'duration'")
     dt = _number(data, "dt", source, 1e-3, 0.1, default=0.01)
-    params = _problem_params(data, source, base)
+    params, floor = _problem_params(data, source, base)
     start = data.get("start", {})
     position = point(start, "position", f"{source} [start]")
     heading = math.radians(_number(start, "heading_deg", f"{source} [start]", -360.0, 360.0, default=0.0))
@@ -240,7 +248,8 @@ def problem_from_dict(data: dict, source: str = "<problem>", base: RollbotParams
         sensor["latency"] = _number(sensor_table, "latency", f"{source} [sensor]", 0, 100, integer=True)
     sensing = _sensing(sensor_table, f"{source} [sensor]", dt)
     common = dict(name=name, kind=kind, duration=duration, dt=dt, params=params, description=description,
-                  start_position=position, start_heading=heading, sensor=sensor, sensing=sensing, source=source)
+                  start_position=position, start_heading=heading, sensor=sensor, sensing=sensing, source=source,
+                  floor=floor)
     mission = mission_class.from_table(data[kind], f"{source} [{kind}]", params, duration)
     return Problem(mission=mission, **common)
 
@@ -293,19 +302,19 @@ def _sensor_model(cls, table: dict, where: str):
         raise ConfigError(f"{where}: {exc}") from None
 
 
-def _problem_params(data: dict, source: str, base: RollbotParams | None) -> RollbotParams:
-    """The robot of a problem: its ``[params]`` and ``[floor]`` on top of ``base``, derived defaults following.
+def _problem_params(data: dict, source: str, base: RollbotParams | None) -> tuple[RollbotParams, Floor]:
+    """The robot and floor of a problem: ``[params]`` and ``[floor]`` on top of ``base``, derived defaults following.
 
+    The floor's slope and friction go into the parameters (their one home);
+    ``[params] mu`` still works, with a deprecation warning (``floor.floor_from_table``).
     Checked for what every scenario needs (damping, see ``_check_damping``).
     """
     table = dict(_table(data, "params", source))
-    floor = data.get("floor", {})
-    for key in ("slope_deg", "slope_dir_deg"):
-        if key in floor:
-            table[key] = _number(floor, key, f"{source} [floor]")
+    floor, keys = floor_from_table(data, source)
+    table.update(keys)
     params = RollbotParams.from_file_dict(table, source=f"{source} [params]", base=base)
     _check_damping(params, source)
-    return params
+    return params, floor
 
 
 def make_controller(name: str, problem: Problem, params: RollbotParams | None = None, **options):
@@ -401,7 +410,7 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
         start = time.perf_counter()
         result = simulate(problem.initial_state(), problem.duration, params=problem.params,
                           controller=ctrl, dt=problem.dt, sensor=sensor, progress=progress if progress.shown else None,
-                          kicks=kicks)
+                          kicks=kicks, floor=problem.floor)
         wall = time.perf_counter() - start
         progress.finish(float(result.t[-1]), result.info)
     centres = _centres(result, ctrl.map)
@@ -451,6 +460,8 @@ def compute_metrics(problem: Problem, result: SimulationResult, centres=None) ->
     if result.estimation is not None:
         error = result.estimation.position_error(result.x)
         out.update(estimation_error_max=float(error.max()), estimation_error_final=float(error[-1]))
+    if result.contact is not None:  # a floor that can slip: how much it did
+        out.update(result.contact.metrics())
     out.update(problem.mission.metrics(result))
     out["completed"] = bool(out["completed"] and not result.events)
     return out

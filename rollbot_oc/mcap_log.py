@@ -100,8 +100,10 @@ CHANNELS = {
     })),
     "/link": ("rollbot_oc.LinkStats", _schema("The robot link's statistics so far", {
         "t": _TIME, **{name: {"type": "integer"} for name in (
-            "frames_sent", "bytes_sent", "frames_received", "bytes_received", "lost", "late", "corrupted",
-            "duplicated", "reordered")},
+            "frames_sent", "bytes_sent", "frames_received", "bytes_received", "lost", "late", "duplicated",
+            "corrupted")},
+        "injected": {"type": ["object", "null"], "description": "what a fault-injecting link did to the frames "
+                     "it sent: frames, lost, corrupted, duplicated, delayed, reordered, disconnected, bytes_cut"},
     })),
 }
 

@@ -15,6 +15,7 @@ from rollbot_oc.cli import main  # noqa: E402
 from rollbot_oc.errors import ConfigError  # noqa: E402
 from rollbot_oc.mcap_log import CHANNELS, LogWriter, read_log, write_run_log  # noqa: E402
 from rollbot_oc.problems import run_problem  # noqa: E402
+from rollbot_oc.robot.faults import FaultCounts, LinkStats  # noqa: E402
 from rollbot_oc.scenarios import load_bundled  # noqa: E402
 
 
@@ -92,6 +93,8 @@ def test_a_streamed_log_keeps_what_was_flushed_when_its_writer_dies(tmp_path):
         log.command(0.01 * k, 1.0, period=k)
     crashed = tmp_path / "crashed.mcap"
     shutil.copy(path, crashed)  # the file as a process killed now leaves it
+    stats = LinkStats(frames_sent=120, bytes_sent=3000, lost=2, late=1, injected=FaultCounts(lost=2).to_dict())
+    log.link(1.2, stats)
     log.close()
     back = read_log(crashed)
     assert not back.complete
@@ -99,6 +102,8 @@ def test_a_streamed_log_keeps_what_was_flushed_when_its_writer_dies(tmp_path):
     assert 51 <= len(kept) <= 120 and kept == [0.01 * k for k in range(len(kept))]
     whole = read_log(path)
     assert whole.complete and len(whole.messages["/measurement"]) == 120 and whole.result.t.size == 120
+    ((t, link),) = whole.messages["/link"]
+    assert t == 1.2 and {k: v for k, v in link.items() if k != "t"} == stats.to_dict()
     with pytest.raises(ValueError, match="unknown channel"):
         LogWriter(tmp_path / "x.mcap").write("/nothing", 0.0, {})
 

@@ -121,6 +121,13 @@ def _require(path) -> None:
         raise ConfigError(f"{path}: MCAP logs need the mcap package ({INSTALL})")
 
 
+def _plain(value):
+    """A numpy array or scalar as a list or number (``json.dumps``'s ``default``)."""
+    if isinstance(value, (np.ndarray, np.generic)):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON-ready")
+
+
 def _ns(t: float, start_ns: int) -> int:
     return start_ns + int(round(t * 1e9))
 
@@ -165,7 +172,11 @@ class LogWriter:
         """Write ``message`` (JSON-ready; ``t`` added) on channel ``topic`` at run time ``t`` (s)."""
         if topic not in self._channels:
             raise ValueError(f"unknown channel {topic!r}: valid are {', '.join(CHANNELS)}")
-        data = json.dumps(json_ready({"t": t, **message}), allow_nan=False, separators=(",", ":")).encode()
+        message = {"t": t, **message}
+        try:  # numpy values through _plain; NaN and infinities (rare) as null through json_ready
+            data = json.dumps(message, allow_nan=False, separators=(",", ":"), default=_plain).encode()
+        except ValueError:
+            data = json.dumps(json_ready(message), allow_nan=False, separators=(",", ":")).encode()
         ns = _ns(t, self.start_ns)
         self._writer.add_message(self._channels[topic], log_time=ns, publish_time=ns, data=data,
                                  sequence=self._sequence[topic])
@@ -231,15 +242,16 @@ def run_messages(run) -> list[tuple[float, str, dict]]:
     channel but /tf, which ``LogWriter.measurement`` adds)."""
     result, dt = run.result, run.result.dt
     out = []
-    for i, t in enumerate(result.t):
-        out.append((float(t), "/measurement", {"period": i, "state": result.x[:, i]}))
-    for k in range(result.command.size):
-        t = float(result.t[k])
-        speed = result.speed_command[k]
-        out.append((t, "/command", {"period": k, "accel": result.command[k],
-                                    "speed": None if np.isnan(speed) else speed,
-                                    "step_time": None if result.step_times is None else result.step_times[k]}))
-        out.append((t, "/diagnostics", {"period": k, **dict(zip(DIAG_NAMES, result.diag[:, k]))}))
+    times = result.t.tolist()
+    for i, (t, state) in enumerate(zip(times, result.x.T.tolist())):
+        out.append((t, "/measurement", {"period": i, "state": state}))
+    steps = result.command.size
+    speeds = [None if math.isnan(v) else v for v in result.speed_command.tolist()]
+    step_times = [None] * steps if result.step_times is None else result.step_times.tolist()
+    for k, (accel, diag) in enumerate(zip(result.command.tolist(), result.diag.T.tolist())):
+        out.append((times[k], "/command", {"period": k, "accel": accel, "speed": speeds[k],
+                                           "step_time": step_times[k]}))
+        out.append((times[k], "/diagnostics", {"period": k, **dict(zip(DIAG_NAMES, diag))}))
     for record in run.references:
         record = dict(record)
         t = record.pop("k") * dt

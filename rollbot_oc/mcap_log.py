@@ -175,7 +175,7 @@ class LogWriter:
         message = {"t": t, **message}
         try:  # numpy values through _plain; NaN and infinities (rare) as null through json_ready
             data = json.dumps(message, allow_nan=False, separators=(",", ":"), default=_plain).encode()
-        except ValueError:
+        except (ValueError, TypeError):
             data = json.dumps(json_ready(message), allow_nan=False, separators=(",", ":")).encode()
         ns = _ns(t, self.start_ns)
         self._writer.add_message(self._channels[topic], log_time=ns, publish_time=ns, data=data,

@@ -229,12 +229,17 @@ def _cmd_stability(args) -> int:
 
 
 def _write_run(run, out) -> None:
-    """Trajectory (.npz), metrics (JSON) and the plots of a closed-loop run, in the folder ``out``."""
+    """Trajectory (.npz), metrics (JSON), log (MCAP) and the plots of a closed-loop run, in the folder ``out``."""
+    from rollbot_oc import mcap_log
     from rollbot_oc.plots import save_run_figures
 
     stem = f"{run.problem.name}_{run.controller}"
     run.result.save(out / f"{stem}.npz")
     write_json(out / f"{stem}.json", run.metrics)
+    if mcap_log.available():
+        mcap_log.write_run_log(run, out / f"{stem}.mcap")
+    else:
+        warnings.warn(f"{stem}.mcap not written: the run's log needs the mcap package ({mcap_log.INSTALL})")
     save_run_figures(run, out)
 
 
@@ -392,7 +397,12 @@ def _cmd_plot(args) -> int:
     from rollbot_oc.simulate import SimulationResult
     from rollbot_oc.summary import saved_run_verdict
 
-    run = SimulationResult.load(args.run_file)
+    if str(args.run_file).endswith(".mcap"):
+        from rollbot_oc.mcap_log import read_log
+
+        run = read_log(user_path(args.run_file, "RUN")).result
+    else:
+        run = SimulationResult.load(args.run_file)
     out = output_folder(args.out)
     stem = Path(args.run_file).stem or "run"
     title = f"{stem}\n{saved_run_verdict(run)}"
@@ -485,7 +495,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "the C library of --c-project (default pid)")
     p.add_argument("--c-project", metavar="DIR", help="--controller c: a folder written by rollbot-oc export-c for "
                    "this problem (built with make if its library is missing)")
-    p.add_argument("--out", metavar="DIR", help="write the trajectory (.npz), metrics (.json) and plots (PNG) here")
+    p.add_argument("--out", metavar="DIR", help="write the trajectory (.npz), metrics (.json), the run's log (.mcap, "
+                   "for Foxglove) and plots (PNG) here")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON (SI units)")
     p.set_defaults(run=_cmd_run)
 
@@ -538,8 +549,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "wall_time, cases_per_second, ...)")
     p.set_defaults(run=_cmd_campaign)
 
-    p = command("plot", help="figures (and an animation) of a saved run (.npz from run/compare --out)")
-    p.add_argument("run_file", metavar="RUN.npz", help="a saved run")
+    p = command("plot", help="figures (and an animation) of a saved run (.npz or .mcap from run/compare --out)")
+    p.add_argument("run_file", metavar="RUN", help="a saved run (.npz) or a run's log (.mcap)")
     p.add_argument("--out", metavar="DIR", default=".", help="where to write the PNG files (default: here)")
     p.add_argument("--animate", action="store_true", help="also write an animated GIF")
     p.set_defaults(run=_cmd_plot)

@@ -356,6 +356,7 @@ class RunResult:
     metrics: dict
     centres: np.ndarray | None = None
     wall_time: float = 0.0
+    references: list = field(default_factory=list)  # what the controller followed (its ``references``), for logs
 
 
 def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: RollbotParams | None = None,
@@ -417,7 +418,7 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
     metrics = compute_metrics(problem, result, centres)
     metrics.update({k: v for k, v in result.info.items() if k != "stops"})
     metrics.update(controller=name, seed=seed, wall_time=wall)
-    return RunResult(problem, name, seed, result, metrics, centres, wall)
+    return RunResult(problem, name, seed, result, metrics, centres, wall, list(getattr(ctrl, "references", [])))
 
 
 def _centres(result: SimulationResult, radius_map) -> np.ndarray | None:

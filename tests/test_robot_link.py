@@ -125,6 +125,19 @@ def test_the_decoder_never_raises(data, size):
     assert decoder.frames + decoder.dropped <= data.count(0) + 1
 
 
+def test_lost_late_and_duplicated_frames_are_told_by_their_sequence_numbers():
+    order = [0, 1, 3, 2, 2, 6, 4, 9, 1, 8, 8]  # 5 and 7 lost; 2, 4 and 8 late; 2, 1 and 8 again
+    decoder = Decoder()
+    got = decoder.feed(b"".join(encode(Heartbeat(s, 0), s) for s in order))
+    assert [p.seq for p in got] == order  # every frame that decodes is returned
+    # ahead: 1->3 skips 1, 3->6 skips 2, 6->9 skips 2
+    assert (decoder.missed, decoder.late, decoder.duplicates) == (5, 3, 3)
+    assert decoder.lost == 2
+    wrapped = Decoder()
+    wrapped.feed(b"".join(encode(Heartbeat(0, 0), s % 65536) for s in range(65530, 65545)))
+    assert (wrapped.missed, wrapped.late, wrapped.duplicates) == (0, 0, 0)  # through the wrap
+
+
 def test_bad_headers_are_counted_by_reason():
     def frame(version=P.VERSION, kind=1, length=5, payload=b"\x01\x00\x00\x00\x02", crc=None):
         body = P._HEADER.pack(version, kind, 0, length) + payload
@@ -212,7 +225,8 @@ REASONS = ("cobs", "crc", "length", "version", "type", "payload", "overflow")
 class CDecoder(ctypes.Structure):
     _fields_ = [("buf", ctypes.c_uint8 * P.MAX_ENCODED), ("len", ctypes.c_uint16), ("discarding", ctypes.c_uint8),
                 ("have_seq", ctypes.c_uint8), ("last_seq", ctypes.c_uint16), ("frames", ctypes.c_uint32),
-                ("missed", ctypes.c_uint32)] + [(f"err_{r}", ctypes.c_uint32) for r in REASONS]
+                ("missed", ctypes.c_uint32), ("late", ctypes.c_uint32), ("duplicates", ctypes.c_uint32),
+                ("seen", ctypes.c_uint32)] + [(f"err_{r}", ctypes.c_uint32) for r in REASONS]
 
 
 SIZES = """#include "rollbot_link.h"
@@ -328,8 +342,8 @@ def test_c_stream_decoder_counts_as_python(clib, parts):
     assert [s for s, _ in got] == [p.seq for p in expected]
     assert all(same(m, p.message) for (_, m), p in zip(got, expected))
     assert {r: getattr(dec, f"err_{r}") for r in REASONS} == python.errors
-    assert (dec.frames, dec.missed, clib.rl_decoder_dropped(ctypes.byref(dec))) == (
-        python.frames, python.missed, python.dropped)
+    assert (dec.frames, dec.missed, dec.late, dec.duplicates, clib.rl_decoder_dropped(ctypes.byref(dec))) == (
+        python.frames, python.missed, python.late, python.duplicates, python.dropped)
 
 
 # --- transports ----------------------------------------------------------------------------------------------

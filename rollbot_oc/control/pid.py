@@ -157,6 +157,7 @@ class QuasiStablePID(ControllerBase):
         self.integral = np.zeros(2)
         self.previous_error = None
         self.layer.reset()
+        self.references = []  # the run's log (not its metrics): per period, the target followed
 
     @property
     def done(self) -> bool:
@@ -176,6 +177,8 @@ class QuasiStablePID(ControllerBase):
         centre = centre_of_curvature(obs.position, heading, radius)
         centre_speed = self.params.R * math.hypot(obs.omega[0], obs.omega[1])
         target = self.layer.target(obs.t, obs.position, heading, centre, self.omega_cmd, centre_speed, obs.theta_dot)
+        self.references.append({"k": len(self.references), "centre": np.array(target.centre, float),
+                                "radius": float(target.radius), "braking": bool(target.braking)})
         if target.braking:
             self.omega_cmd = max(0.0, self.omega_cmd - self.layer.predictor.decel * dt)
             self.integral[:] = 0.0

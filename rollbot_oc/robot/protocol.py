@@ -47,7 +47,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 __all__ = [
-    "VERSION", "MAX_PAYLOAD", "MAX_CHUNK", "MAX_ENCODED", "HEADER_BYTES", "CRC_BYTES", "STATE_SIZE",
+    "VERSION", "SEQ_WINDOW", "MAX_PAYLOAD", "MAX_CHUNK", "MAX_ENCODED", "HEADER_BYTES", "CRC_BYTES", "STATE_SIZE",
     "MessageType", "Heartbeat", "Measurement", "Command", "PlanChunk", "Mode", "Message", "Packet",
     "cobs_encode", "cobs_decode", "CobsError", "crc32", "encode", "decode_frame", "FrameError",
     "Decoder", "split_plan", "PlanAssembler",
@@ -60,6 +60,7 @@ MAX_PAYLOAD = 244  # so that a packet is at most 254 bytes, one COBS block
 MAX_PACKET = HEADER_BYTES + MAX_PAYLOAD + CRC_BYTES
 MAX_ENCODED = MAX_PACKET + MAX_PACKET // 254 + 1  # a packet's COBS encoding at most (256 bytes)
 STATE_SIZE = 11
+SEQ_WINDOW = 32  # sequence numbers behind the highest one that the decoder remembers (duplicates, late frames)
 _PLAN_HEADER = struct.Struct("<HHH")
 MAX_CHUNK = MAX_PAYLOAD - _PLAN_HEADER.size  # plan bytes in one PLAN_CHUNK (238)
 
@@ -436,8 +437,16 @@ class Decoder:
     errors : dict of str to int
         Frames dropped, by reason.
     missed : int
-        Sequence numbers skipped between consecutive decoded frames (frames lost or dropped on the way,
-        assuming the sender numbers every frame it sends).
+        Sequence numbers skipped ahead of the highest one decoded so far (frames lost, dropped or still on
+        the way, assuming the sender numbers every frame it sends).
+    late : int
+        Frames decoded after a frame with a later sequence number (reordered or delayed on the way): not seen
+        before within the last ``SEQ_WINDOW`` (32) numbers, or older than that.
+    duplicates : int
+        Frames whose sequence number was decoded already, within the last ``SEQ_WINDOW`` numbers.
+
+    Every frame that decodes is returned, late and duplicated ones too (the application's period numbers
+    tell it a command or measurement it has already used); ``lost`` is ``missed - late``.
     """
 
     REASONS = ("cobs", "crc", "length", "version", "type", "payload", "overflow")
@@ -446,14 +455,41 @@ class Decoder:
         self._buffer = bytearray()
         self._discarding = False
         self._last_seq: int | None = None
+        self._seen = 0  # bit i: sequence number _last_seq - i decoded
         self.frames = 0
         self.missed = 0
+        self.late = 0
+        self.duplicates = 0
         self.errors = dict.fromkeys(self.REASONS, 0)
 
     @property
     def dropped(self) -> int:
         """Frames dropped, all reasons together."""
         return sum(self.errors.values())
+
+    @property
+    def lost(self) -> int:
+        """Sequence numbers skipped and not decoded later (``missed - late``, at least 0)."""
+        return max(0, self.missed - self.late)
+
+    def _sequence(self, seq: int) -> None:
+        """Count ``seq`` against the numbers decoded so far (as the C decoder does)."""
+        if self._last_seq is None:
+            self._last_seq, self._seen = seq, 1
+            return
+        ahead = (seq - self._last_seq) % 65536
+        if 0 < ahead < 32768:
+            self.missed += ahead - 1
+            self._seen = ((self._seen << ahead) | 1) & 0xFFFFFFFF if ahead < SEQ_WINDOW else 1
+            self._last_seq = seq
+            return
+        back = (self._last_seq - seq) % 65536
+        if back < SEQ_WINDOW and self._seen >> back & 1:
+            self.duplicates += 1
+        else:
+            self.late += 1
+            if back < SEQ_WINDOW:
+                self._seen |= 1 << back
 
     def feed(self, data: bytes) -> list[Packet]:
         """Take the next bytes of the stream; return the packets of the frames they complete, in order."""
@@ -480,9 +516,7 @@ class Decoder:
             except FrameError as err:
                 self.errors[err.reason] += 1
                 continue
-            if self._last_seq is not None:
-                self.missed += (packet.seq - self._last_seq - 1) % 65536
-            self._last_seq = packet.seq
+            self._sequence(packet.seq)
             self.frames += 1
             packets.append(packet)
         return packets

@@ -15,6 +15,10 @@ URLs
     A serial port (8N1) through pyserial (``pip install 'rollbot_oc[robot]'``); ``baud`` from 300 to
     4000000 baud, 115200 when left out.  The role does not apply.
 
+Either URL takes fault options (``?loss=0.05&jitter=0.02&seed=3``, ``rollbot_oc.robot.faults``): the
+transport is then wrapped in a ``FaultyLink`` that loses, corrupts, duplicates, delays and reorders the frames
+it sends and cuts the link for a window of time.
+
 ``parse_link`` checks a URL and raises one one-line ``ConfigError`` for a bad one.
 """
 
@@ -64,6 +68,7 @@ class LinkSpec:
     port: int = 0
     device: str = ""
     baud: int = 0
+    faults: object = None  # a faults.FaultSpec from the URL's fault options, or None
 
 
 def _bad(url: str, why: str) -> ConfigError:
@@ -97,9 +102,14 @@ def parse_link(url: str) -> LinkSpec:
         raise _bad(url, f"bad query {parts.query!r}") from None
     if parts.fragment:
         raise _bad(url, f"unexpected fragment {parts.fragment!r}")
+    from rollbot_oc.robot.faults import FAULT_OPTIONS, parse_faults
+
+    faults = parse_faults(query, f"link URL {url!r}")
+    query = {name: values for name, values in query.items() if name not in FAULT_OPTIONS}
     if scheme == "udp":
         if query:
-            raise _bad(url, f"unknown option(s) {', '.join(sorted(query))} for udp")
+            raise _bad(url, f"unknown option(s) {', '.join(sorted(query))} for udp (valid: the faults' "
+                            f"{', '.join(FAULT_OPTIONS)})")
         if parts.path not in ("", "/"):
             raise _bad(url, f"unexpected path {parts.path!r} for udp")
         netloc = parts.netloc
@@ -114,21 +124,22 @@ def parse_link(url: str) -> LinkSpec:
         port = int(port_text)
         if port > 65535:
             raise _bad(url, f"port {port} is out of range [0, 65535]")
-        return LinkSpec("udp", url, host=host, port=port)
+        return LinkSpec("udp", url, host=host, port=port, faults=faults)
     if parts.netloc:
         raise _bad(url, f"a serial URL has no host ({parts.netloc!r}): write serial:///dev/ttyX")
     if not parts.path.startswith("/") or parts.path.endswith("/") or len(parts.path) < 2:
         raise _bad(url, f"device {parts.path!r} is not a path such as /dev/ttyUSB0")
     unknown = sorted(set(query) - {"baud"})
     if unknown:
-        raise _bad(url, f"unknown option(s) {', '.join(unknown)} for serial (valid: baud)")
+        raise _bad(url, f"unknown option(s) {', '.join(unknown)} for serial (valid: baud and the faults' "
+                        f"{', '.join(FAULT_OPTIONS)})")
     baud_text = query.get("baud", [str(DEFAULT_BAUD)])
     if len(baud_text) != 1 or not baud_text[0].isdigit():
         raise _bad(url, f"baud {'&'.join(baud_text)!r} is not a whole number in [{BAUD_RANGE[0]}, {BAUD_RANGE[1]}]")
     baud = int(baud_text[0])
     if not BAUD_RANGE[0] <= baud <= BAUD_RANGE[1]:
         raise _bad(url, f"baud {baud} is out of range [{BAUD_RANGE[0]}, {BAUD_RANGE[1]}]")
-    return LinkSpec("serial", url, device=parts.path, baud=baud)
+    return LinkSpec("serial", url, device=parts.path, baud=baud, faults=faults)
 
 
 @dataclass
@@ -330,12 +341,15 @@ def open_link(url: str, role: str = "connect") -> Transport:
     Returns
     -------
     Transport
-        ``UdpTransport`` or ``SerialTransport``; ``ConfigError`` (one line) if the URL is bad or the link
-        cannot be opened.
+        ``UdpTransport`` or ``SerialTransport``, in a ``faults.FaultyLink`` if the URL has fault options;
+        ``ConfigError`` (one line) if the URL is bad or the link cannot be opened.
     """
     spec = parse_link(url)
     if role not in ROLES:
         raise ConfigError(f"link role {role!r}: valid are {', '.join(ROLES)}")
-    if spec.scheme == "udp":
-        return UdpTransport(spec, role)
-    return SerialTransport(spec)
+    link = UdpTransport(spec, role) if spec.scheme == "udp" else SerialTransport(spec)
+    if spec.faults is not None:
+        from rollbot_oc.robot.faults import FaultyLink
+
+        return FaultyLink(link, spec.faults)
+    return link

@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from rollbot_oc.control.nmpc.planner import Planner
 from rollbot_oc.control.nmpc.reference import Reference
 from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.step import TrackingStep
 from rollbot_oc.control.nmpc.supervisors import GATE_REPLANS, Context, supervisor_for
 from rollbot_oc.control.nmpc.telemetry import Telemetry
+from rollbot_oc.dynamics import REDUCED
 from rollbot_oc.params import RollbotParams
 from rollbot_oc.quasi_stable import RadiusMap
 from rollbot_oc.simulate import Command, ControllerBase, Observation
@@ -98,6 +101,8 @@ class NMPC(ControllerBase):
             self.supervisor.reset()
         self.k = 0
         self.step.reset(self.telemetry)
+        self.references = []  # the run's log (not its metrics): see _keep
+        self._kept_plan = None
 
     @property
     def done(self) -> bool:
@@ -120,10 +125,29 @@ class NMPC(ControllerBase):
         if step.in_fallback(t_now):
             return step.fallback_command(k, obs, z, supervisor.goal)
         if step.needs_solve(k):
-            step.solve(supervisor.window(z, k), z, k, supervisor.fallback, supervisor.on_give_up)
+            window = supervisor.window(z, k)
+            self._keep(k, window)
+            step.solve(window, z, k, supervisor.fallback, supervisor.on_give_up)
             if step.current is None:  # the fallback took over
                 return step.fallback_command(k, obs, z, supervisor.goal)
         return step.command(k)
+
+    def _keep(self, k: int, window) -> None:
+        """Keep for the run's log (``references``, one dict per solve; not in the metrics) the reference solved
+        on at tick ``k``: its nodes' positions (m) and driving speeds (rad/s), ``h`` s apart from ``k * dt``, and
+        accelerations (rad/s^2); with, under ``plan``, the plan it samples the first time it is followed (its
+        summary and its nodes' times, positions and driving speeds)."""
+        Zr, r = window.Zr, REDUCED
+        record = {"k": k, "h": self.settings.horizon.h, "x": Zr[r.position.start].copy(),
+                  "y": Zr[r.position.start + 1].copy(), "theta_dot": Zr[r.theta_dot].copy(),
+                  "accel": np.array(window.Ur, float).ravel()}
+        reference, segment = self.supervisor.reference, self.supervisor.segment
+        plan = reference.segments[segment] if reference is not None and segment < len(reference.segments) else None
+        if plan is not None and plan[0] is not self._kept_plan:
+            self._kept_plan = plan = plan[0]
+            record["plan"] = {**plan.to_dict(), "t": plan.t.copy(), "x": plan.z[r.position.start].copy(),
+                              "y": plan.z[r.position.start + 1].copy(), "theta_dot": plan.z[r.theta_dot].copy()}
+        self.references.append(record)
 
     def report(self) -> dict:
         """Solve-time statistics (s), solver statuses, fallback counts, stops, plans and mode timelines."""

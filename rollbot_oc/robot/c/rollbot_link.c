@@ -255,6 +255,25 @@ uint32_t rl_decoder_dropped(const rl_decoder_t *dec) {
         + dec->err_payload + dec->err_overflow;
 }
 
+/* Count a decoded sequence number against those decoded so far (as the Python Decoder does). */
+static void rl_sequence(rl_decoder_t *dec, uint16_t seq) {
+    uint16_t ahead = (uint16_t)(seq - dec->last_seq), back = (uint16_t)(dec->last_seq - seq);
+    if (!dec->have_seq) {
+        dec->have_seq = 1;
+        dec->last_seq = seq;
+        dec->seen = 1u;
+    } else if (ahead > 0u && ahead < 32768u) {
+        dec->missed += (uint32_t)ahead - 1u;
+        dec->seen = ahead < RL_SEQ_WINDOW ? (dec->seen << ahead) | 1u : 1u;
+        dec->last_seq = seq;
+    } else if (back < RL_SEQ_WINDOW && ((dec->seen >> back) & 1u)) {
+        dec->duplicates++;
+    } else {
+        dec->late++;
+        if (back < RL_SEQ_WINDOW) dec->seen |= 1u << back;
+    }
+}
+
 int rl_decoder_push(rl_decoder_t *dec, uint8_t byte, rl_message_t *msg) {
     int32_t r;
     if (byte != 0) {
@@ -277,9 +296,7 @@ int rl_decoder_push(rl_decoder_t *dec, uint8_t byte, rl_message_t *msg) {
     dec->len = 0;
     switch (r) {
     case RL_OK:
-        if (dec->have_seq) dec->missed += (uint16_t)(msg->seq - dec->last_seq - 1u);
-        dec->have_seq = 1;
-        dec->last_seq = msg->seq;
+        rl_sequence(dec, msg->seq);
         dec->frames++;
         return 1;
     case RL_ERR_COBS: dec->err_cobs++; break;

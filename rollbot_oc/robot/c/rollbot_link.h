@@ -31,6 +31,7 @@ extern "C" {
 #define RL_MAX_PAYLOAD 244                                   /* a packet is at most 254 bytes */
 #define RL_MAX_PACKET (RL_HEADER_BYTES + RL_MAX_PAYLOAD + RL_CRC_BYTES)
 #define RL_MAX_ENCODED (RL_MAX_PACKET + RL_MAX_PACKET / 254 + 1) /* COBS of a packet, at most (256) */
+#define RL_SEQ_WINDOW 32u /* sequence numbers behind the highest that the decoder remembers */
 #define RL_MAX_FRAME (RL_MAX_ENCODED + 1)                    /* with its delimiter: size send buffers so */
 #define RL_PLAN_HEADER_BYTES 6
 #define RL_MAX_CHUNK (RL_MAX_PAYLOAD - RL_PLAN_HEADER_BYTES)  /* plan bytes in one PLAN_CHUNK (238) */
@@ -110,7 +111,10 @@ typedef struct {
     uint8_t have_seq;
     uint16_t last_seq;
     uint32_t frames;     /* frames decoded */
-    uint32_t missed;     /* sequence numbers skipped between decoded frames */
+    uint32_t missed;     /* sequence numbers skipped ahead of the highest decoded */
+    uint32_t late;       /* frames decoded after a later-numbered one (reordered, delayed) */
+    uint32_t duplicates; /* sequence numbers decoded again (within the last RL_SEQ_WINDOW) */
+    uint32_t seen;       /* bit i: sequence number last_seq - i decoded */
     uint32_t err_cobs, err_crc, err_length, err_version, err_type, err_payload, err_overflow;
 } rl_decoder_t;
 

@@ -9,7 +9,7 @@ of radius ``r0 sin(phi)`` around the motor axis (the body z' axis),
     r' = r0 (sin phi cos theta, sin phi sin theta, -cos phi),
 
 and a damping torque ``-k0 omega`` from its beads.  Summing the moments of the
-mass, the shell and its no-slip constraint about the contact point gives
+mass, the shell and its no-slip constraint about the contact point gives::
 
     (sum_q m_q (|u_q|^2 I3 - u_q u_q^T) + M R^2 (I3 - z z^T) + I I3) omega_dot
         = sum_q m_q u_q x (g - h_q) + M R z x g + R z x f + tau,

@@ -94,7 +94,7 @@ def test_arrival_weights_weigh_only_the_nodes_past_the_leg():
 
 
 def test_circle_half_the_pid_deviation():
-    """The tightest circle (the README's table measures all four). Each controller measured over 45 s once
+    """The tightest circle (`rollbot-oc compare` measures all four). Each controller measured over 45 s once
     settled: the PID from the paper's 120 s, the NMPC, which plans its entry onto the circle, from 30 s (both
     from reaching the circle if that is later)."""
     problem = load_problem(PROBLEMS / "circle_R020.toml")

@@ -16,7 +16,7 @@ small and its derivatives keep the stage structure): the continuity gap
 ``h_k = T_phase / N_phase``, the path constraints, the general cost
 ``h_k l(x_k, u_k)`` and the least-squares residuals ``sqrt(h_k) r(x_k, u_k)``.
 Node terms (start, end of a phase, a node index) are evaluated where they
-apply.  The cost is
+apply.  The cost is::
 
     f = time_weight * sum(T) + general terms + 0.5 |residuals|^2 + soft penalties,
 

@@ -29,7 +29,7 @@ from pathlib import Path
 from rollbot_oc.campaign.case import Outcome, describe
 from rollbot_oc.campaign.function import plain
 from rollbot_oc.campaign.store import CASE_COLUMNS, OUTCOME_COLUMNS, RUN_COLUMNS, WORKER_FAILURE
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 
 __all__ = ["execute", "executor", "check_workers", "code_fingerprint", "default_workers", "SCHEDULER_VARIABLE",
            "MAX_WORKERS"]

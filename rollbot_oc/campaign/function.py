@@ -29,8 +29,8 @@ import numpy as np
 
 from rollbot_oc.campaign.case import Outcome, register
 from rollbot_oc.campaign.spec import grid_cases
-from rollbot_oc.errors import ConfigError
-from rollbot_oc.problems import _check_keys
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.scenarios.problem import _check_keys
 
 __all__ = ["FunctionKind", "plain", "resolve_target"]
 

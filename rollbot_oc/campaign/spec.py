@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from rollbot_oc.campaign.case import KINDS, Case, case_id, case_seed
-from rollbot_oc.errors import ConfigError
-from rollbot_oc.params import read_toml
-from rollbot_oc.problems import _check_keys, _check_name, _number, _table
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.model.params import read_toml
+from rollbot_oc.scenarios.problem import _check_keys, _check_name, _number, _table
 
 __all__ = ["Campaign", "load_campaign", "campaign_from_dict", "load_campaign_spec", "bundled_campaigns",
            "bundled_campaign_table",
@@ -140,7 +140,7 @@ def load_campaign(path: str | Path) -> Campaign:
 
 
 def _bundled_folder():
-    from rollbot_oc.scenarios import _folder
+    from rollbot_oc.scenarios.bundled import _folder
 
     return _folder().joinpath("campaigns")
 
@@ -173,7 +173,7 @@ def load_campaign_spec(text: str) -> Campaign:
     ConfigError
         If it is neither (the bundled specs are listed), or the file is bad.
     """
-    from rollbot_oc.scenarios import file_or_bundled
+    from rollbot_oc.scenarios.bundled import file_or_bundled
 
     path, name = file_or_bundled(text, "campaign spec", bundled_campaigns(), ("campaigns", "problems/campaigns"))
     if path is not None:

@@ -30,8 +30,8 @@ import json
 import time
 from pathlib import Path
 
-from rollbot_oc.errors import ConfigError
-from rollbot_oc.outputs import atomic_write_bytes
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.core.outputs import atomic_write_bytes
 
 __all__ = ["ResultStore", "columns", "RUN_COLUMNS", "WORKER_FAILURE", "CASE_COLUMNS", "OUTCOME_COLUMNS"]
 

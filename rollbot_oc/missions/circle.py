@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.missions.base import Mission, check_point, register
 from rollbot_oc.missions.schema import POSITION_LIMIT, number, point
 
@@ -30,7 +30,7 @@ REACH_HOLD = 10.0  # s the robot must stay within reach_tolerance of the circle 
 @functools.lru_cache(maxsize=32)
 def _radius_range(params) -> tuple[float, float]:
     """The robot's quasi-stable radii ``[R_min, R_max]`` (slow branch, level floor), m."""
-    from rollbot_oc.quasi_stable import RadiusMap
+    from rollbot_oc.analysis.quasi_stable import RadiusMap
 
     radius_map = RadiusMap(params.replace(slope=0.0))
     return radius_map.R_min, radius_map.R_max
@@ -105,7 +105,7 @@ class Circle(Mission):
 
     def verdict(self, metrics: dict) -> list[str]:
         """On the circle and when, the deviations; or why not completed."""
-        from rollbot_oc.summary import number
+        from rollbot_oc.view.text import number
 
         m = metrics
         if m["completed"]:

@@ -20,12 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.missions.base import Mission, check_point, path_length, register
 from rollbot_oc.missions.schema import number, points
 from rollbot_oc.missions.stops import STOP_TOLERANCE
 from rollbot_oc.missions.waypoints import Waypoint
-from rollbot_oc.reproducible import norm
+from rollbot_oc.core.reproducible import norm
 
 __all__ = ["Gates", "gate_passes", "PassMonitor", "PASS_SPEED"]
 
@@ -157,7 +157,7 @@ class Gates(Mission):
 
     def verdict(self, metrics: dict) -> list[str]:
         """Completed and when, or how many gates were passed; the worst miss."""
-        from rollbot_oc.summary import number
+        from rollbot_oc.view.text import number
 
         misses = metrics["gate_misses"]
         head = (f"completed in {number(metrics['completion_time'], '.1f', 's')}" if metrics["completed"] else

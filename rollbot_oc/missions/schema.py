@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 
 __all__ = ["POSITION_LIMIT", "number", "points", "point", "table", "check_keys"]
 

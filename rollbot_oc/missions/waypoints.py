@@ -15,11 +15,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from rollbot_oc.dynamics import OMEGA
+from rollbot_oc.model.dynamics import OMEGA
 from rollbot_oc.missions.base import Mission, check_point, path_length, register
 from rollbot_oc.missions.schema import number, points
 from rollbot_oc.missions.stops import STOP_TOLERANCE, StopRule, reached_stops
-from rollbot_oc.reproducible import norm
+from rollbot_oc.core.reproducible import norm
 
 __all__ = ["Waypoint", "Waypoints"]
 
@@ -114,7 +114,7 @@ class Waypoints(Mission):
 
     def verdict(self, metrics: dict) -> list[str]:
         """Completed and when, or how many stops were reached; the worst stop error."""
-        from rollbot_oc.summary import number
+        from rollbot_oc.view.text import number
 
         errors = metrics["stop_errors"]
         worst = f"worst stop error {number(max(errors), '.1f', 'cm', 100)}" if errors else ""

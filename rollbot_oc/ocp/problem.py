@@ -40,9 +40,9 @@ from types import SimpleNamespace
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.ocp.model import OCPModel, rollbot_model
-from rollbot_oc.params import ParamView
+from rollbot_oc.model.params import ParamView
 
 __all__ = ["OCP", "FreeTime", "Constraint", "bounded"]
 

@@ -40,8 +40,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.errors import ConfigError
-from rollbot_oc.fastcall import FastFunction
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.core.fastcall import FastFunction
 from rollbot_oc.ocp.problem import OCP, Constraint, FreeTime
 
 __all__ = ["Transcription", "Layout"]
@@ -303,7 +303,7 @@ class Transcription:
     def nlp(self, compiled: bool = False):
         """``(f, g, general, residuals)``: the NLP in MX of ``w`` and ``par``, its stages alike evaluated by one
         mapped call of their Function; ``compiled``: that Function and its Jacobian as compiled C
-        (``rollbot_oc.codegen``; then an NLP solver has first derivatives only: a limited-memory Hessian)."""
+        (``rollbot_oc.model.codegen``; then an NLP solver has first derivatives only: a limited-memory Hessian)."""
         ocp, L, w, par = self.ocp, self.layout, self.w, self.par
         n = L.intervals
         p = par[L.parameters["p"]]
@@ -313,7 +313,7 @@ class Transcription:
         c_of, l_of, r_of = {}, {}, {}
         for fun, group in self.groups():
             if compiled:
-                from rollbot_oc.codegen import compiled as compile_function
+                from rollbot_oc.model.codegen import compiled as compile_function
 
                 # without optimisation: a stage and its Jacobian are 2 MB of C that gcc -O1 takes a minute to
                 # compile and -O0 seconds, and an NLP solver's time goes to its own linear algebra, not to them

@@ -26,7 +26,7 @@ import time
 from dataclasses import dataclass
 from urllib.parse import parse_qs, urlsplit
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 
 __all__ = ["LinkSpec", "LinkCounters", "Transport", "UdpTransport", "SerialTransport", "parse_link", "open_link",
            "ROLES", "BAUD_RANGE", "DEFAULT_BAUD", "DEFAULT_HOST"]

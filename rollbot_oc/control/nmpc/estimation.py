@@ -10,10 +10,10 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.ocp import rollbot_model
-from rollbot_oc.dynamics import NZ, REDUCED
-from rollbot_oc.fastcall import FastFunction
-from rollbot_oc.params import NP, PARAM_INDEX, TILT, RollbotParams
-from rollbot_oc.reproducible import dot, matmul, norm, solve
+from rollbot_oc.model.dynamics import NZ, REDUCED
+from rollbot_oc.core.fastcall import FastFunction
+from rollbot_oc.model.params import NP, PARAM_INDEX, TILT, RollbotParams
+from rollbot_oc.core.reproducible import dot, matmul, norm, solve
 
 __all__ = ["TiltEstimator", "LEARNABLE", "check_filter"]
 

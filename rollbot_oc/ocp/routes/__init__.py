@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 
 __all__ = ["Route", "ROUTES", "make_route"]
 

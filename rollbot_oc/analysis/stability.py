@@ -265,7 +265,7 @@ def state_space(result: Stability):
     states.  Its poles are the five eigenvalues of ``result`` and a zero from
     the motor (acceleration integrates to driving speed).
     """
-    import control
+    import control  # start-up: python-control is slow to import and only this function uses it
 
     return control.ss(result.A, result.B, np.eye(6), np.zeros((6, 1)), states=list(STATE_LABELS),
                       inputs=["theta_ddot"], outputs=list(STATE_LABELS),

@@ -28,6 +28,10 @@ from rollbot_oc.campaign.case import Outcome, describe, register
 from rollbot_oc.scenarios.courses import CourseRanges, random_course
 from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.scenarios.problem import CONTROLLERS, _check_keys, _number, check_duration
+from rollbot_oc.campaign import figures
+from rollbot_oc.campaign.summary import quantiles
+from rollbot_oc.scenarios.bounds import minimum_time_bound
+from rollbot_oc.scenarios.problem import run_problem
 
 __all__ = ["ClosedLoopKind", "BOUND"]
 
@@ -119,7 +123,6 @@ class ClosedLoopKind:
         try:
             if inputs["controller"] == BOUND:
                 return self._bound(problem, drawn)
-            from rollbot_oc.scenarios.problem import run_problem
 
             run = run_problem(problem, inputs["controller"], seed=course.noise_seed, params=course.believed)
         except Exception as exc:  # the row keeps what was drawn, and the error
@@ -128,8 +131,6 @@ class ClosedLoopKind:
 
     @staticmethod
     def _bound(problem, drawn: dict) -> Outcome:
-        from rollbot_oc.scenarios.bounds import minimum_time_bound
-
         bound = minimum_time_bound(problem.params, problem.initial_state(), problem.mission.stops)
         stops = len(problem.mission.stops)
         return Outcome({"completed": True, "completion_time": bound.total, "stops_reached": stops,
@@ -168,7 +169,6 @@ class ClosedLoopKind:
     def summarise(self, table) -> dict:
         """Per controller (``controllers``): success rate, stop errors (m, every stop reached), completion times
         (s, successful runs) and their ratio to the course's bound; ``bound``: the bounds planned (s)."""
-        from rollbot_oc.campaign.summary import quantiles
 
         ratios = time_ratios(table)
         out, bound = {}, {}
@@ -189,7 +189,6 @@ class ClosedLoopKind:
 
     def figures(self, table, folder) -> list:
         """Success rate against each varied input, histograms of stop errors and of time ratios."""
-        from rollbot_oc.campaign import figures
 
         runs = table[table["controller"] != BOUND]
         ratios = time_ratios(table)

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from rollbot_oc.core.errors import ConfigError
+from rollbot_oc import __version__
 
 __all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "write_json", "save_npz", "versions",
            "to_json", "json_ready", "output_folder", "OutputFolder", "file_mode", "user_path"]
@@ -143,15 +144,13 @@ def save_npz(path: str | Path, **arrays) -> Path:
 
 def versions() -> dict[str, str]:
     """Versions of Python, rollbot_oc and the numerical packages, for reproducible outputs."""
-    import casadi
+    import casadi  # start-up: these are imported here, where a result is written, not by every user of outputs
     import scipy
-
-    from rollbot_oc import __version__
 
     found = {"python": platform.python_version(), "rollbot_oc": __version__,
              "casadi": casadi.__version__, "numpy": np.__version__, "scipy": scipy.__version__}
     try:
-        import control
+        import control  # slow to import; see above
 
         found["control"] = control.__version__
     except ImportError:  # optional at this level

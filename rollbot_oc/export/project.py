@@ -41,6 +41,9 @@ from rollbot_oc.export.embedded import EmbeddedController
 from rollbot_oc.export.reference import EmbeddedReference, plan_reference
 from rollbot_oc.export.step import EMBEDDED_SETTINGS, StepFunction, control_step
 from rollbot_oc.core.outputs import OutputFolder, atomic_write_text, to_json
+from rollbot_oc.model.codegen import compiler
+from rollbot_oc.scenarios.problem import run_problem
+import shutil
 
 __all__ = ["export_c", "ExportResult", "build", "HAND_WRITTEN", "LOG_NAME", "BUILD_TIMEOUT"]
 
@@ -241,7 +244,6 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     ConfigError
         If ``out`` cannot be a folder, the problem is not a course of stops or a leg cannot be planned.
     """
-    from rollbot_oc.scenarios.problem import run_problem
 
     folder = OutputFolder(out)  # checked and created before anything is computed
     s = settings or EMBEDDED_SETTINGS
@@ -284,9 +286,7 @@ def build(folder, target: str | None = None, jobs: int = 1) -> subprocess.Comple
     ConfigError
         If there is no ``make`` or no C compiler.
     """
-    import shutil
 
-    from rollbot_oc.model.codegen import compiler
 
     if shutil.which("make") is None or compiler() is None:
         raise ConfigError("building the exported controller needs make and a C compiler (cc, gcc or clang)")

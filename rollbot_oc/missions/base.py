@@ -18,6 +18,7 @@ import numpy as np
 from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.missions.stops import STOP_TOLERANCE, StopRule
 from rollbot_oc.core.reproducible import norm
+from rollbot_oc.view.text import number as shown  # a value with its unit, as the summaries print it
 
 __all__ = ["Mission", "register", "mission_kind", "KINDS", "centre_of_curvature", "check_point"]
 
@@ -102,10 +103,9 @@ class Mission:
 
     def verdict(self, metrics: dict) -> list[str]:
         """How a run went, in a few words (``summary.run_verdict``), from its ``metrics``."""
-        from rollbot_oc.view.text import number
 
-        return [f"completed in {number(metrics.get('completion_time'), '.1f', 's')}" if metrics["completed"] else
-                f"NOT completed in {number(metrics['duration'], '.1f', 's')}"]
+        return [f"completed in {shown(metrics.get('completion_time'), '.1f', 's')}" if metrics["completed"] else
+                f"NOT completed in {shown(metrics['duration'], '.1f', 's')}"]
 
     # -- what the controllers ask ---------------------------------------------------------------
     @classmethod

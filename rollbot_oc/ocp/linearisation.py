@@ -22,6 +22,7 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.core.fastcall import FastFunction
+from rollbot_oc.model.codegen import compiled
 
 __all__ = ["StructuredLinearisation"]
 
@@ -41,8 +42,6 @@ class _Group:
                                    ca.triu(ca.mtimes(Jr.T, Jr) + ca.hessian(l, z)[0]), l + 0.5 * ca.sumsqr(r)],
                                   list(names), ["c", "J", "grad", "H", "f"])
         if compile_it:
-            from rollbot_oc.model.codegen import compiled
-
             derivatives = compiled(derivatives)
         count = len(stages)
         shared = [1, 2, 3]  # v, p and q are the same for every stage; y, sq and hs are per stage

@@ -248,7 +248,7 @@ class RestToRest(_MinTimeOCP):
         first of those to converge is the plan: a fresh start from a failed
         iterate (its barrier parameter and quasi-Newton memory reset) often
         converges where the first run stalled with tiny steps
-        (``benchmarks/bench_robustness_result.md`` item 12).  The plan's
+        (``benchmarks/bench_robustness.py`` measures how often).  The plan's
         ``iterations`` and ``solve_time`` are the totals over the starts;
         ``tilt``, ``motor_scale`` and ``model`` as for ``solve``; ``quick`` (m) makes the last start a
         quick profile (``quasi_stable_guesses``).

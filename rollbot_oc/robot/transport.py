@@ -276,7 +276,7 @@ class SerialTransport(Transport):
     def __init__(self, spec: LinkSpec):
         super().__init__(spec)
         try:
-            import serial
+            import serial  # optional extra [robot]: only a serial link needs pyserial
         except ImportError:
             raise ConfigError(f"link URL {spec.url!r}: serial links need pyserial "
                               "(pip install 'rollbot_oc[robot]')") from None

@@ -29,6 +29,9 @@ import numpy as np
 
 from rollbot_oc.core.errors import NumericalFailure
 from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.model.dynamics import rest_state
+from rollbot_oc.planning.min_time import OCPSettings, SolveFailed, plan_waypoints
+from rollbot_oc.scenarios.bundled import load_bundled
 
 __all__ = ["TimeBound", "minimum_time_bound", "n_shape_bound", "BOUND_STARTS", "BOUND_RESUMES"]
 
@@ -63,7 +66,6 @@ def _plan_legs(params: RollbotParams, start_state: np.ndarray, stops) -> list[fl
     NumericalFailure
         If a leg cannot be planned (the leg and the solver's status are named).
     """
-    from rollbot_oc.planning.min_time import OCPSettings, SolveFailed, plan_waypoints
 
     try:  # the stage constraints as compiled C (the same problem, solved several times faster)
         plans = plan_waypoints(start_state, [np.asarray(s, float) for s in stops], params, OCPSettings(compiled=True),
@@ -101,8 +103,6 @@ def minimum_time_bound(params: RollbotParams, start_state: np.ndarray, stops) ->
 
 def n_shape_bound(params: RollbotParams) -> TimeBound:
     """The minimum-time bound of the bundled ``n_shape`` course for the robot ``params`` on a level floor."""
-    from rollbot_oc.model.dynamics import rest_state
-    from rollbot_oc.scenarios.bundled import load_bundled
 
     course = load_bundled("n_shape")
     level = params.replace(slope=0.0)

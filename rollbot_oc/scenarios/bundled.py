@@ -10,17 +10,17 @@ being installed reads the ``problems/`` folder beside the package.
 from __future__ import annotations
 
 import importlib.resources
-import re
 import tomllib
 from pathlib import Path
 
 from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.core.outputs import user_path
+from rollbot_oc.missions.schema import NAME_PATTERN
 
 __all__ = ["bundled_names", "bundled_text", "bundled_table", "list_bundled", "load_bundled", "load_scenario",
            "file_or_bundled", "NAME_PATTERN"]
 
 PACKAGE = "rollbot_oc.problems_data"
-NAME_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{0,63}")  # a scenario name, also a file stem
 
 
 def _folder():
@@ -74,7 +74,7 @@ def load_bundled(name: str, base=None):
     ConfigError
         If there is no bundled scenario of that name (the valid names are listed).
     """
-    from rollbot_oc.scenarios.problem import problem_from_dict
+    from rollbot_oc.scenarios.problem import problem_from_dict  # start-up: listing needs no controller (seconds)
 
     return problem_from_dict(bundled_table(name), f"bundled scenario {name}", base)
 
@@ -98,8 +98,6 @@ def file_or_bundled(text: str, what: str, names, folders: tuple) -> tuple[Path |
     (Path, None) for an existing file, (None, name) for a bundled name
     (with or without ``.toml``), (None, None) for neither.
     """
-    from rollbot_oc.core.outputs import user_path
-
     path = user_path(text, what)
     if path.exists():
         return path, None
@@ -132,7 +130,7 @@ def load_scenario(text: str, base=None):
     ConfigError
         If it is neither (the bundled scenarios are listed), or the file is bad.
     """
-    from rollbot_oc.scenarios.problem import load_problem
+    from rollbot_oc.scenarios.problem import load_problem  # start-up: as in load_bundled
 
     path, name = file_or_bundled(text, "problem", bundled_names(), ("problems",))
     if path is not None:

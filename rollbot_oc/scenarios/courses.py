@@ -43,6 +43,8 @@ import numpy as np
 from rollbot_oc.core.errors import ConfigError, NumericalFailure
 from rollbot_oc.model.params import RollbotParams
 from rollbot_oc.core.reproducible import norm
+from rollbot_oc.analysis.quasi_stable import RadiusMap
+from rollbot_oc.scenarios.problem import problem_from_dict
 
 __all__ = ["CourseRanges", "GateCourseRanges", "Course", "random_course", "random_gate_course", "course_duration",
            "DURATION_BASE", "DURATION_PER_METRE",
@@ -245,7 +247,6 @@ def _geometry(rng, ranges: CourseRanges):
 
 def _analysable(params: RollbotParams) -> bool:
     """Whether the quasi-stable radius map of ``params`` (level floor) can be built up to full speed."""
-    from rollbot_oc.analysis.quasi_stable import RadiusMap
 
     try:
         RadiusMap(params.replace(slope=0.0))
@@ -342,7 +343,6 @@ def _course(seed, index, ranges: CourseRanges, geometry, robot_rng, sensing, noi
             kind: str, tolerance: float | None = None):
     """The ``Course`` of ``kind`` (``"waypoints"`` through stops, or ``"gates"``) on ``targets``, with its floor,
     robot, sensors and model error drawn from the given streams."""
-    from rollbot_oc.scenarios.problem import problem_from_dict
 
     slope_deg, slope_dir_deg = _uniform(geometry, ranges.slope_deg), float(geometry.uniform(0.0, 360.0))
     # a robot the model error keeps analysable too (the controller builds its radius map from its model)

@@ -76,6 +76,7 @@ from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.simulation.ekf import EstimatorSettings
 from rollbot_oc.simulation.onboard import OnboardSensing
 from rollbot_oc.missions import KINDS, REACH_HOLD, Mission, centre_of_curvature, mission_kind
+from rollbot_oc.missions.schema import NAME_PATTERN
 from rollbot_oc.missions.schema import check_keys as _check_keys
 from rollbot_oc.missions.schema import number as _number
 from rollbot_oc.missions.schema import point
@@ -85,6 +86,7 @@ from rollbot_oc.core.progress import RunProgress, working
 from rollbot_oc.simulation.sensors import MODES, EncoderModel, ImuModel, MocapModel, SensingConfig
 from rollbot_oc.simulation.plant import Sensor, SimulationResult, simulate
 from rollbot_oc.view.text import comparison_row, comparison_table
+from rollbot_oc.analysis.quasi_stable import RadiusMap
 
 __all__ = ["Problem", "load_problem", "make_controller", "run_problem", "run_open_loop", "compute_metrics", "RunResult",
            "compare", "comparison_row", "comparison_table",  # the last two live in summary
@@ -180,8 +182,6 @@ def check_duration(value, where: str = "duration") -> float:
 
 def _check_name(value, source: str) -> str:
     """The problem's ``name``: a plain identifier (it is the stem of every file a run writes)."""
-    from rollbot_oc.scenarios.bundled import NAME_PATTERN
-
     if not isinstance(value, str) or not NAME_PATTERN.fullmatch(value):
         raise ConfigError(f"{source}: key 'name' = {value!r} must be 1 to 64 letters, digits, '_' or '-' "
                           "(not starting with '-'); it names the output files")
@@ -323,9 +323,9 @@ def make_controller(name: str, problem: Problem, params: RollbotParams | None = 
     """
     believed = params or problem.params.replace(slope=0.0)
     if name == "pid":
-        from rollbot_oc.control.pid import QuasiStablePID as controller
+        from rollbot_oc.control.pid import QuasiStablePID as controller  # start-up: only the chosen controller
     elif name == "nmpc":
-        from rollbot_oc.control.nmpc import NMPC as controller
+        from rollbot_oc.control.nmpc import NMPC as controller  # is imported (the NMPC's modules take seconds)
     else:
         raise ConfigError(f"controller = {name!r}; valid are {', '.join(CONTROLLERS)}")
     try:
@@ -414,8 +414,6 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
 def _centres(result: SimulationResult, radius_map) -> np.ndarray | None:
     """The paper's centre of curvature along a run (quasi-stable radius at the measured speed)."""
     if radius_map is None:
-        from rollbot_oc.analysis.quasi_stable import RadiusMap
-
         radius_map = RadiusMap(result.params.replace(slope=0.0))
     radius = radius_map.radius(np.clip(result.driving_speed, 0.0, radius_map.omega_max))
     return centre_of_curvature(result.position, result.heading, radius)

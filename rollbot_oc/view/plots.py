@@ -15,6 +15,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from rollbot_oc.core.outputs import atomic_write_bytes
+from rollbot_oc.model.dynamics import RollbotModel
+from rollbot_oc.view.text import compare_headline, run_verdict
+from rollbot_oc.view.text import run_title
 
 __all__ = [
     "ROBOT", "CENTRE", "SPEED", "TARGET", "THEORY", "MEASURED", "save_figure", "plot_top_view", "plot_time_series",
@@ -245,7 +248,6 @@ def plot_comparison(runs, path=None, title: str | None = None):
     title : str, optional
         Default: which controller did better (``summary.compare_headline``).
     """
-    from rollbot_oc.view.text import compare_headline, run_verdict
 
     fig = plt.figure(figsize=(13, 2.2 + 3.0 * len(runs)), layout="constrained")
     grid = fig.add_gridspec(2 * len(runs), 2, width_ratios=[1, 1.5], height_ratios=[3, 1] * len(runs))
@@ -309,7 +311,6 @@ def save_run_figures(run, folder) -> list[Path]:
     list of Path
         The files written.
     """
-    from rollbot_oc.view.text import run_title
 
     stem = f"{run.problem.name}_{run.controller}"
     targets = run.problem.mission.targets or None
@@ -331,7 +332,6 @@ def plot_energy_and_contact(result, path=None, title: str | None = None):
     The energy panel also draws ``E(0) +`` the integrated motor and damping power: the two
     curves lie on each other when the simulation conserves energy as it should.
     """
-    from rollbot_oc.model.dynamics import RollbotModel
 
     model = RollbotModel(result.params)
     t = result.t

@@ -33,6 +33,7 @@ from rollbot_oc.core.errors import ConfigError, interruptible
 from rollbot_oc.ocp.linearisation import StructuredLinearisation
 from rollbot_oc.ocp.solution import OCPSolution
 from rollbot_oc.core.reproducible import dot
+from rollbot_oc.model.codegen import compiler
 
 __all__ = ["SQPRoute", "RTIRoute"]
 
@@ -138,8 +139,6 @@ class SQPRoute:
         self.transcription = tr = transcription
         self.max_iter, self.tol, self.line_search = max_iter, tol, line_search
         if compiled is None:
-            from rollbot_oc.model.codegen import compiler
-
             compiled = compiler() is not None
         self.linearisation = StructuredLinearisation(tr, regularisation, compiled)
         self.merit = self.linearisation.cost_and_constraints

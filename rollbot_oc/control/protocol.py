@@ -111,7 +111,7 @@ class Controller(Protocol):
         """Return the command for the next control period from an observation."""
 
     def prepare(self, x0) -> None:
-        """Plan offline from the start state ``x0`` (11,), before the run starts (``problems.run_problem``)."""
+        """Plan offline from the start state ``x0`` (11,), before the run starts (``scenarios.problem.run_problem``)."""
 
     @property
     def done(self) -> bool:

@@ -63,7 +63,7 @@ class ExportResult:
     step : StepFunction
     reference : EmbeddedReference
     metrics : dict
-        The recorded closed-loop run of the Python embedded controller (``problems.compute_metrics``).
+        The recorded closed-loop run of the Python embedded controller (``scenarios.problem.compute_metrics``).
     log : numpy.ndarray (periods, 14)
         Measurement (12), command (rad/s^2) and status of every period of that run.
     sizes : dict
@@ -237,7 +237,7 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
         ``RECORD_FACTOR`` times the planned legs' duration and ``RECORD_MARGIN`` seconds (within the
         problem's duration).
     show_progress : bool or None
-        Progress of the recorded run on stderr (as for ``problems.run_problem``).
+        Progress of the recorded run on stderr (as for ``scenarios.problem.run_problem``).
 
     Raises
     ------

@@ -102,7 +102,7 @@ class Mission:
         return {}
 
     def verdict(self, metrics: dict) -> list[str]:
-        """How a run went, in a few words (``summary.run_verdict``), from its ``metrics``."""
+        """How a run went, in a few words (``view.text.run_verdict``), from its ``metrics``."""
 
         return [f"completed in {shown(metrics.get('completion_time'), '.1f', 's')}" if metrics["completed"] else
                 f"NOT completed in {shown(metrics['duration'], '.1f', 's')}"]

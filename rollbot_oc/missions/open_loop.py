@@ -56,7 +56,7 @@ class OpenLoop(Mission):
         return {"speeds": list(self.speeds), "ramp_rate": float(self.ramp_rate)}
 
     def run(self, problem, show_progress: bool | None = None) -> dict:
-        """Each driving speed measured in simulation against the quasi-stable theory (``problems.run_open_loop``).
+        """Each driving speed measured in simulation against the quasi-stable theory (``problem.run_open_loop``).
 
         Returns
         -------

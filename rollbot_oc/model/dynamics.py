@@ -33,7 +33,7 @@ Input ``u`` (1): motor acceleration theta_ddot [rad/s^2].  Acceleration rather
 than speed or torque is the input because it keeps the model an ODE with the
 mass trajectory prescribed (the paper's assumption); the torque the motor must
 supply follows from it (``motor_torque``), and speed commands become
-accelerations through the plant's speed loop (``simulate``).
+accelerations through the plant's speed loop (``simulation.plant``).
 
 External wrench ``w`` (6): force on the shell centre (3) [N] and torque on
 the shell (3) [N m], floor frame; zero unless given.

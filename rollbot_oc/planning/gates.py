@@ -5,7 +5,7 @@ each of free duration and ``GATE_INTERVALS`` shooting intervals, the shell
 centre on gate i at the end of phase i, the motor's torque, speed and
 acceleration limits and the contact margins of ``OCPSettings`` on the path,
 the total time plus a little motor effort minimised.  Solved by IPOPT from a
-physical guess: the quasi-stable guesses (``control.ocp.quasi_stable_guess``)
+physical guess: the quasi-stable guesses (``planning.guesses.quasi_stable_guess``)
 of rest-to-rest legs from gate to gate, chained; the solver then keeps the
 momentum through each gate that the guess loses at it.
 """

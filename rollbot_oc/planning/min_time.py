@@ -22,7 +22,7 @@ error and the plant's slope will ask of the feedback.  More constraints
 (``constraints``: functions of the ``OCP``) join them in one line.
 
 Initial guesses come from the quasi-stable theory, never zeros
-(``control.guesses``); a solved trajectory is a ``Plan`` (``control.plan``).
+(``planning.guesses``); a solved trajectory is a ``Plan`` (``planning.plan``).
 
 IPOPT uses a limited-memory Hessian here, with the stages and their Jacobians
 compiled to C where a compiler exists (``OCPSettings.compiled``): each

@@ -2,7 +2,7 @@
 
 This module is the one place where campaigns, course benchmarks and the
 hardware co-design call the optimal-control layer, so that switching the
-layer (``rollbot_oc.planning.min_time`` today) is a change to ``_plan_legs`` only.
+layer (``rollbot_oc.planning.min_time``) is a change to ``_plan_legs`` only.
 
 The bound of a course is the sum of the minimum times of its legs, each a
 rest-to-rest plan over the full dynamics with the motor's torque, speed and
@@ -11,7 +11,7 @@ acceleration limits and the no-jump and no-slide margins of the planner
 included), each the fastest of ``BOUND_STARTS`` starts (``RestToRest.fastest``; if none
 converges, up to ``BOUND_RESUMES`` of them are solved again from where IPOPT stopped, as the NMPC's
 planner does, ``NMPCSettings.planner.resumes``).  It is
-a bound in the sense the issue tracker uses it: what the planner finds, a
+a bound in the planner's sense: what the planner finds, a
 local optimum, not a proven global minimum (single starts land in optima up
 to twice as slow).
 

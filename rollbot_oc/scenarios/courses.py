@@ -6,8 +6,7 @@ independent stream each for the course's geometry, its robot, its sensors
 and model error, and the sensor noise of the run, so that narrowing one
 range (say the robots') leaves the others' draws as they were.
 
-What is drawn (uniformly, ranges in ``CourseRanges``; defaults from the
-tracker's issue 11):
+What is drawn (uniformly, ranges in ``CourseRanges``):
 
 * geometry: 3 to 8 stops in a 3 m square centred on the origin, every leg
   (the start to the first stop included) 0.3 to 3 m long; the start heading

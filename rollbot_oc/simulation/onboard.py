@@ -1,11 +1,11 @@
 """Onboard sensing in the closed loop: the sensors read the plant, the filter turns readings into the estimate.
 
-``OnboardSensing`` is what ``simulate.simulate`` takes as its ``sensor`` in
+``OnboardSensing`` is what ``simulation.plant.simulate`` takes as its ``sensor`` in
 the modes ``"imu"`` and ``"imu+mocap"`` (``sensors.SensingConfig``).  At
 each control step ``k`` (time ``k dt``) it
 
 1. reads the IMU samples and the encoder of the period that just ended
-   (the plant's noise-free signals, ``simulate.plant_step(..., samples=m)``,
+   (the plant's noise-free signals, ``simulation.plant.plant_step(..., samples=m)``,
    with the sensors' noise and biases) and advances the filter through them
    under the motor command of that period;
 2. lets motion capture see the true state (mode ``"imu+mocap"``; queued
@@ -47,10 +47,10 @@ class EstimationRecord:
     t : numpy.ndarray (K,)
         Times of the estimates (the control instants), s.
     estimate : numpy.ndarray (19, K)
-        Nominal states (``estimation.AUG``): model state, gyroscope bias,
+        Nominal states (``simulation.ekf.AUG``): model state, gyroscope bias,
         accelerometer bias, tilt.
     std : numpy.ndarray (18, K)
-        Standard deviations of the error state (``estimation.ERROR_NAMES``, ``ERROR_UNITS``).
+        Standard deviations of the error state (``simulation.ekf.ERROR_NAMES``, ``ERROR_UNITS``).
     position_covariance : numpy.ndarray (K, 2, 2)
         Covariance of the estimated shell-centre position, m^2.
     true_bias : numpy.ndarray (6, K)
@@ -130,7 +130,7 @@ class EstimationRecord:
         return np.vstack([np.asarray(x)[:, :n], self.true_bias, np.repeat(np.reshape(tilt, (2, 1)), n, axis=1)])
 
     def errors(self, x, tilt) -> np.ndarray:
-        """The estimation errors, truth minus estimate as error states (18, K) (``estimation.ERR``)."""
+        """The estimation errors, truth minus estimate as error states (18, K) (``simulation.ekf.ERR``)."""
         truth = self.truth(x, tilt)
         return np.column_stack([error_between(truth[:, k], self.estimate[:, k]) for k in range(len(self))])
 

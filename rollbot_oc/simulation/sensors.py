@@ -27,7 +27,7 @@ What each sensor measures, in the plant's terms (SI units, radians):
 The IMU is sampled ``samples_per_period`` times per control period, at the
 end of each equal part of it, with the motor command of that period held
 (``body_signals`` gives the noise-free signals; the plant evaluates them
-inside its step, ``simulate.plant_step(..., samples=m)``).  Motion capture
+inside its step, ``simulation.plant.plant_step(..., samples=m)``).  Motion capture
 samples the state at control instants.  Every random number comes from one
 ``numpy.random.default_rng(seed)`` in a fixed order: the same seed gives the
 same readings.
@@ -258,7 +258,7 @@ class SensingConfig:
     ----------
     mode : {"mocap", "imu", "imu+mocap"}
         ``"mocap"``: the controller sees motion capture and a gyroscope
-        directly (``simulate.Sensor``, today's behaviour); ``"imu"``: it sees
+        directly (``simulation.plant.Sensor``); ``"imu"``: it sees
         the estimate from the IMU and the encoder (dead reckoning);
         ``"imu+mocap"``: the estimate fusing motion capture too.
     imu : ImuModel

@@ -242,11 +242,11 @@ def plot_comparison(runs, path=None, title: str | None = None):
     Parameters
     ----------
     runs : list of RunResult
-        Runs of the same problem (for example ``problems.compare``).
+        Runs of the same problem (for example ``scenarios.problem.compare``).
     path : str or Path, optional
         Where to write the PNG.
     title : str, optional
-        Default: which controller did better (``summary.compare_headline``).
+        Default: which controller did better (``view.text.compare_headline``).
     """
 
     fig = plt.figure(figsize=(13, 2.2 + 3.0 * len(runs)), layout="constrained")
@@ -302,7 +302,7 @@ def save_run_figures(run, folder) -> list[Path]:
     Parameters
     ----------
     run : RunResult
-        The run (``problems.run_problem``).
+        The run (``scenarios.problem.run_problem``).
     folder : Path or OutputFolder
         Where to write ``<problem>_<controller>_top.png``, ``_time.png`` and ``_energy.png``.
 

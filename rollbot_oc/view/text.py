@@ -150,7 +150,7 @@ def _cm(value):
 
 
 def comparison_row(run) -> dict:
-    """The comparison-table entries of one run (a ``problems.RunResult``), keys of ``RUN_FIELDS``.
+    """The comparison-table entries of one run (a ``scenarios.problem.RunResult``), keys of ``RUN_FIELDS``.
 
     Errors and deviations in cm, solve times in ms (the PID's controller time
     per step), the rest in SI units.
@@ -198,7 +198,7 @@ def _events(events: list) -> str:
 
 
 def run_verdict(run) -> str:
-    """A closed-loop run (``problems.RunResult``) in a few words: did it work, and how well.
+    """A closed-loop run (``scenarios.problem.RunResult``) in a few words: did it work, and how well.
 
     Completed or not and when, the worst stop error or the deviations from the
     circle, contact events and exceeded limits, and the NMPC's fallbacks.

@@ -121,7 +121,7 @@ class FilterSettings(Checked):
     enabled : bool
         Estimate the floor tilt (offset-free); off gives the nominal model.
     learn : tuple of str
-        Parameters (of ``estimation.LEARNABLE``) whose scale factors the filter learns as the robot moves.
+        Parameters (of ``control.nmpc.estimation.LEARNABLE``) whose scale factors the filter learns as the robot moves.
     learn_sigma : float
         Prior standard deviation of each learned factor, in (0, 0.3].
     process_noise : float

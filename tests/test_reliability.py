@@ -475,9 +475,9 @@ def test_12_run_takes_a_bundled_name(tmp_path, monkeypatch):
 
 
 def test_12_demo_reads_its_scenario_through_importlib_resources():
-    source = (ROOT / "rollbot_oc" / "report.py").read_text()
+    source = (ROOT / "rollbot_oc" / "app" / "report.py").read_text()
     assert "problems/" not in source and 'load_bundled("n_shape"' in source
-    assert "importlib.resources.files" in (ROOT / "rollbot_oc" / "scenarios.py").read_text()
+    assert "importlib.resources.files" in (ROOT / "rollbot_oc" / "scenarios" / "bundled.py").read_text()
 
 
 # 13 ------------------------------------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ import tempfile
 from pathlib import Path
 
 from rollbot_oc.campaign import campaign_from_dict, run_campaign
-from rollbot_oc.outputs import atomic_write_text
+from rollbot_oc.core.outputs import atomic_write_text
 
 DESIGN = {"name": "bench_design", "kind": "design",
           "design": {"speeds": 30, "reference": False, "grid": {"phi_deg": {"from": 30, "to": 60, "steps": 10}}}}

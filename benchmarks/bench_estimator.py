@@ -16,12 +16,12 @@ import time
 
 import numpy as np
 
-from rollbot_oc.estimation import ErrorStateEKF
-from rollbot_oc.onboard import OnboardSensing
-from rollbot_oc.problems import make_controller
-from rollbot_oc.scenarios import load_bundled
-from rollbot_oc.sensors import SensingConfig
-from rollbot_oc.simulate import simulate
+from rollbot_oc.simulation.ekf import ErrorStateEKF
+from rollbot_oc.simulation.onboard import OnboardSensing
+from rollbot_oc.scenarios.problem import make_controller
+from rollbot_oc.scenarios.bundled import load_bundled
+from rollbot_oc.simulation.sensors import SensingConfig
+from rollbot_oc.simulation.plant import simulate
 
 DURATION = 60.0  # s simulated
 

@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from rollbot_oc.export.project import build, embedded_controller, export_c
-from rollbot_oc.problems import run_problem
-from rollbot_oc.scenarios import load_bundled
+from rollbot_oc.scenarios.problem import run_problem
+from rollbot_oc.scenarios.bundled import load_bundled
 
 # Cortex-M cycle model (stated assumptions, not measurements)
 THUMB_PER_X86 = 1.3  # Thumb-2 instructions per x86-64 instruction for this code (loads/stores not folded)

@@ -22,9 +22,9 @@ from concurrent.futures import ProcessPoolExecutor
 
 
 def run_course(index: int, seed: int = 0) -> dict:
-    from rollbot_oc.courses import random_gate_course
-    from rollbot_oc.errors import NotConverged
-    from rollbot_oc.problems import run_problem
+    from rollbot_oc.scenarios.courses import random_gate_course
+    from rollbot_oc.core.errors import NotConverged
+    from rollbot_oc.scenarios.problem import run_problem
 
     course = random_gate_course(seed, index)
     row = {"course": index, "gates": course.inputs["n_gates"], "length": round(course.inputs["length"], 2),

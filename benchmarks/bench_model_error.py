@@ -11,9 +11,9 @@ Run: .venv/bin/python benchmarks/bench_model_error.py
 import time
 from dataclasses import replace
 
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.problems import run_problem
-from rollbot_oc.scenarios import load_bundled
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.scenarios.problem import run_problem
+from rollbot_oc.scenarios.bundled import load_bundled
 
 
 def main():

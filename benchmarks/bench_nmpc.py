@@ -11,12 +11,12 @@ import statistics
 import sys
 import time
 
-from rollbot_oc.codegen import compiler
+from rollbot_oc.model.codegen import compiler
 from rollbot_oc.control.nmpc import NMPCSettings
-from rollbot_oc.control.ocp import OCPSettings, RestToRest
-from rollbot_oc.dynamics import rest_state
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.problems import load_problem, run_problem
+from rollbot_oc.planning.min_time import OCPSettings, RestToRest
+from rollbot_oc.model.dynamics import rest_state
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.scenarios.problem import load_problem, run_problem
 
 
 def closed_loop(label, problem, settings, duration=None):

@@ -24,12 +24,12 @@ import time
 import numpy as np
 
 from rollbot_oc.control.nmpc import NMPCSettings
-from rollbot_oc.control.ocp import RestToRest, SolveFailed, quasi_stable_guesses
-from rollbot_oc.courses import random_course
-from rollbot_oc.dynamics import REDUCED, to_reduced
-from rollbot_oc.scenarios import load_bundled
+from rollbot_oc.planning.min_time import RestToRest, SolveFailed, quasi_stable_guesses
+from rollbot_oc.scenarios.courses import random_course
+from rollbot_oc.model.dynamics import REDUCED, to_reduced
+from rollbot_oc.scenarios.bundled import load_bundled
 
-BUSY = ("from rollbot_oc.problems import run_problem\nfrom rollbot_oc.scenarios import load_bundled\n"
+BUSY = ("from rollbot_oc.scenarios.problem import run_problem\nfrom rollbot_oc.scenarios.bundled import load_bundled\n"
         "while True:\n    run_problem(load_bundled('n_shape'), 'nmpc', show_progress=False)\n")
 
 

@@ -53,7 +53,7 @@ TOL_FEAS = 1e-6  # SQPRoute.qp_feasibility
 def capture(duration: float) -> dict:
     """Run the N-shape with the NMPC for ``duration`` s and record the tracking QPs (N = 60) in order."""
     from rollbot_oc.ocp.routes import sqp
-    from rollbot_oc.problems import load_problem, run_problem
+    from rollbot_oc.scenarios.problem import load_problem, run_problem
 
     qps, meta = [], {}
     original = sqp.SQPRoute._solve_qp

@@ -12,9 +12,9 @@ import time
 
 import numpy as np
 
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.quasi_stable import RadiusMap, _curve, _states, quasi_stable_curve
-from rollbot_oc.stability import _analyse, stability_curve
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.analysis.quasi_stable import RadiusMap, _curve, _states, quasi_stable_curve
+from rollbot_oc.analysis.stability import _analyse, stability_curve
 
 
 def timed(run, repeats):

@@ -12,9 +12,9 @@ Run: .venv/bin/python benchmarks/bench_recovery.py
 import time
 from dataclasses import replace
 
-from rollbot_oc.problems import run_problem
-from rollbot_oc.scenarios import load_bundled
-from rollbot_oc.simulate import Kick
+from rollbot_oc.scenarios.problem import run_problem
+from rollbot_oc.scenarios.bundled import load_bundled
+from rollbot_oc.simulation.plant import Kick
 
 
 def main():

@@ -1,7 +1,7 @@
 """Robustness on random courses: the controllers on at least 100 seeded courses, through the campaign engine.
 
 The bundled ``robustness`` campaign (``problems/campaigns/robustness.toml``:
-100 courses of ``rollbot_oc.courses``, random robots, floors, sensors and
+100 courses of ``rollbot_oc.scenarios.courses``, random robots, floors, sensors and
 +-10 % model error, the NMPC, the PID baseline and each course's minimum-time
 bound), with the number of courses and the controllers as options.  It
 reports, per controller, the success rate, the stop errors, the completion
@@ -25,7 +25,7 @@ import sys
 from rollbot_oc.campaign import campaign_from_dict, run_campaign
 from rollbot_oc.campaign.spec import bundled_campaign_table
 from rollbot_oc.campaign.summary import summary_markdown
-from rollbot_oc.outputs import atomic_write_text
+from rollbot_oc.core.outputs import atomic_write_text
 
 
 def main():

@@ -6,9 +6,10 @@ Run: .venv/bin/python benchmarks/bench_simulate.py
 import statistics
 import time
 
-from rollbot_oc.dynamics import rest_state
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.simulate import Command, ControllerBase, simulate
+from rollbot_oc.model.dynamics import rest_state
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.control.protocol import Command, ControllerBase
+from rollbot_oc.simulation.plant import simulate
 
 DURATION, REPEATS = 60.0, 7
 

@@ -1,7 +1,7 @@
 """Hardware co-design: the fastest N-shape within manufacturable bounds, recovering within 8 s, steering as widely.
 
 Find ``phi``, ``m`` and ``r0`` that minimise the minimum-time N-shape bound
-(``rollbot_oc.bounds.n_shape_bound``: the bundled N-shape on a level floor)
+(``rollbot_oc.scenarios.bounds.n_shape_bound``: the bundled N-shape on a level floor)
 subject to
 
 * a worst recovery time ``tau_max`` of at most 8 s at every driving speed
@@ -52,8 +52,8 @@ import numpy as np
 
 from rollbot_oc.campaign import Campaign, run_campaign
 from rollbot_oc.campaign.design_points import DesignKind
-from rollbot_oc.outputs import write_json
-from rollbot_oc.params import RollbotParams
+from rollbot_oc.core.outputs import write_json
+from rollbot_oc.model.params import RollbotParams
 
 BOUNDS = {"phi_deg": (30.0, 60.0), "m": (0.2, 0.45), "r0": (0.07, 0.10)}
 STEP = {"phi_deg": 5.0, "m": 0.05, "r0": 0.01}  # the compass search's first step
@@ -196,8 +196,8 @@ def main():
         "wall_time": time.perf_counter() - start,
     }
     if args.nmpc:  # the closed-loop check of the best design (the NMPC's own N-shape, on its 1 deg slope)
-        from rollbot_oc.problems import run_problem
-        from rollbot_oc.scenarios import load_bundled
+        from rollbot_oc.scenarios.problem import run_problem
+        from rollbot_oc.scenarios.bundled import load_bundled
 
         params = PROTOTYPE.with_changes(phi=math.radians(best["phi_deg"]), m=best["m"], r0=best["r0"])
         result["nmpc_best"] = run_problem(load_bundled("n_shape", base=params), "nmpc").metrics

@@ -19,7 +19,7 @@ import time
 from multiprocessing import Pool
 
 from rollbot_oc.control.pid import PIDGains
-from rollbot_oc.problems import load_problem, run_problem
+from rollbot_oc.scenarios.problem import load_problem, run_problem
 
 GRID = dict(kp=[0.3, 0.6, 1.2], ki=[0.05, 0.1, 0.2], kr=[0.3, 0.6], max_accel=[1.0, 2.0, 4.0, 8.0], max_radius=[0.9])
 QUICK = dict(kp=[0.3, 1.2], ki=[0.05], kr=[0.1, 0.3], max_accel=[0.5, 2.0], max_radius=[0.9])

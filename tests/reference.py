@@ -3,7 +3,7 @@
 ``newton_euler`` writes Newton's and Euler's laws for the shell and each point
 mass with the contact and internal forces as unknowns, adds the rolling
 constraint, and solves the resulting linear system.  It shares no algebra with
-the contact-point moment balance that ``rollbot_oc.dynamics`` implements (the
+the contact-point moment balance that ``rollbot_oc.model.dynamics`` implements (the
 paper's closed form), so agreement between the two checks both.
 """
 

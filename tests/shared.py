@@ -77,13 +77,13 @@ def n_shape_pid_run(tmp_path_factory):
 
 
 def n_shape_problem():
-    from rollbot_oc.scenarios import load_bundled
+    from rollbot_oc.scenarios.bundled import load_bundled
 
     return load_bundled("n_shape")
 
 
 def n_shape_run(tmp_path_factory, controller: str):
-    from rollbot_oc.problems import run_problem
+    from rollbot_oc.scenarios.problem import run_problem
 
     # compare(problem, seed=0) is [run_problem(problem, name, seed=0, params=None, duration=None) for pid, nmpc]
     return _shared(tmp_path_factory, f"n_shape_{controller}", lambda: run_problem(
@@ -94,8 +94,8 @@ def n_shape_run(tmp_path_factory, controller: str):
 def pid_circle_run(tmp_path_factory):
     """``pid_circle_run(name)``: the bundled circle ``name`` under the PID, seed 0, its whole duration (each run
     once per session when first asked).  Used by test_pid."""
-    from rollbot_oc.problems import run_problem
-    from rollbot_oc.scenarios import load_bundled
+    from rollbot_oc.scenarios.problem import run_problem
+    from rollbot_oc.scenarios.bundled import load_bundled
 
     def run(name: str):
         return _shared(tmp_path_factory, f"pid_{name}",

@@ -8,8 +8,8 @@ import pandas as pd
 import pytest
 
 from rollbot_oc.campaign import RUN_COLUMNS, Campaign, campaign_from_dict, load_campaign_spec, run_campaign
-from rollbot_oc.cli import main
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.app.cli import main
+from rollbot_oc.core.errors import ConfigError
 
 DESIGN = {  # five cheap design points (the prototype and a 2 x 2 grid), the last with a folding branch
     "name": "tiny_design", "kind": "design", "seed": 3,
@@ -166,8 +166,8 @@ def test_bad_workers_and_scheduler_are_refused_before_anything_runs(tmp_path, ca
 def test_design_points_with_the_n_shape_bound_and_the_pareto_front(tmp_path, monkeypatch):
     """The bound's optimal-control call replaced by a stand-in (the real one takes seconds per design): heavier
     pendulums plan "faster" here, and one design's planning fails, which fails its row but keeps its measures."""
-    import rollbot_oc.bounds as bounds
-    from rollbot_oc.errors import NotConverged
+    import rollbot_oc.scenarios.bounds as bounds
+    from rollbot_oc.core.errors import NotConverged
 
     def legs(params, start, stops):
         if params.m > 0.4:

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from rollbot_oc.cli import main
+from rollbot_oc.app.cli import main
 
 
 def run_json(argv, capsys, status=0):

@@ -2,7 +2,7 @@
 
 Parameter files, problem files, saved runs and argument vectors are generated
 (valid, out of range, wrong types, NaN and infinities, missing and unknown
-keys, odd paths) and ``rollbot_oc.cli.main`` is called in-process.  Whatever
+keys, odd paths) and ``rollbot_oc.app.cli.main`` is called in-process.  Whatever
 the input:
 
 * no traceback, and every line on stderr is one of ours (``rollbot-oc: ...``);
@@ -25,10 +25,10 @@ from pathlib import Path
 from hypothesis import event, given
 from hypothesis import strategies as st
 
-from rollbot_oc.cli import main
-from rollbot_oc.dynamics import rest_state
-from rollbot_oc.params import _FILE_KEYS
-from rollbot_oc.simulate import simulate
+from rollbot_oc.app.cli import main
+from rollbot_oc.model.dynamics import rest_state
+from rollbot_oc.model.params import _FILE_KEYS
+from rollbot_oc.simulation.plant import simulate
 
 # -- values and files -----------------------------------------------------------------------------------------
 text = st.text(alphabet=st.characters(blacklist_categories=("Cs",), blacklist_characters="\0"), max_size=8)

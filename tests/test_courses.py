@@ -7,9 +7,9 @@ import pandas as pd
 import pytest
 
 from rollbot_oc.campaign import RUN_COLUMNS, campaign_from_dict, run_campaign
-from rollbot_oc.courses import CourseRanges, course_duration, random_course
-from rollbot_oc.errors import ConfigError
-from rollbot_oc.params import RollbotParams
+from rollbot_oc.scenarios.courses import CourseRanges, course_duration, random_course
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.model.params import RollbotParams
 
 PROTOTYPE = RollbotParams()
 

@@ -2,8 +2,8 @@
 
 import math
 
-from rollbot_oc.design import sweep
-from rollbot_oc.params import RollbotParams
+from rollbot_oc.analysis.design import sweep
+from rollbot_oc.model.params import RollbotParams
 
 PHIS = [math.radians(40), math.radians(50)]
 

@@ -7,12 +7,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 from reference import newton_euler, quat_matrix, rollbot_mass
 
-from rollbot_oc.dynamics import (
+from rollbot_oc.model.dynamics import (
     NW, NX, OMEGA, POS, QUAT, REDUCED, RollbotModel, PointMass, imbalance, rest_attitude, rest_state, shell_dynamics,
     symbolic_model, to_reduced,
 )
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.rotations import matrix_to_quat_np, quat_to_matrix_np, rot_z_np
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.model.rotations import matrix_to_quat_np, quat_to_matrix_np, rot_z_np
 
 
 def random_state(rng, spin=3.0):

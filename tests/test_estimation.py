@@ -6,14 +6,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rollbot_oc.control.missions import Waypoints
-from rollbot_oc.dynamics import QUAT
-from rollbot_oc.estimation import AUG, ERR, NE, EstimatorSettings, boxminus, boxplus, error_between, imu_model
-from rollbot_oc.onboard import EstimationRecord, OnboardSensing, nees_bounds
-from rollbot_oc.problems import make_controller, problem_from_dict, run_problem
-from rollbot_oc.scenarios import bundled_table, load_bundled
-from rollbot_oc.sensors import EncoderModel, ImuModel, MocapModel, SensingConfig
-from rollbot_oc.simulate import SimulationResult, simulate
+from rollbot_oc.missions import Waypoints
+from rollbot_oc.model.dynamics import QUAT
+from rollbot_oc.simulation.ekf import AUG, ERR, NE, EstimatorSettings, boxminus, boxplus, error_between, imu_model
+from rollbot_oc.simulation.onboard import EstimationRecord, OnboardSensing, nees_bounds
+from rollbot_oc.scenarios.problem import make_controller, problem_from_dict, run_problem
+from rollbot_oc.scenarios.bundled import bundled_table, load_bundled
+from rollbot_oc.simulation.sensors import EncoderModel, ImuModel, MocapModel, SensingConfig
+from rollbot_oc.simulation.plant import SimulationResult, simulate
 
 PERFECT_MOCAP = MocapModel(latency=0.0, position_noise=0.0, angle_noise=0.0)
 

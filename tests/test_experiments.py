@@ -3,9 +3,9 @@ import json
 import numpy as np
 import pytest
 
-from rollbot_oc.cli import main
-from rollbot_oc.experiments import fit_circle, open_loop_run
-from rollbot_oc.params import RollbotParams
+from rollbot_oc.app.cli import main
+from rollbot_oc.analysis.experiments import fit_circle, open_loop_run
+from rollbot_oc.model.params import RollbotParams
 
 
 def test_fit_circle_recovers_a_circle():

@@ -10,12 +10,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from rollbot_oc.cli import EXIT_USAGE, main
-from rollbot_oc.codegen import compiler
+from rollbot_oc.app.cli import EXIT_USAGE, main
+from rollbot_oc.model.codegen import compiler
 from rollbot_oc.control.nmpc.tracking import tracking_problem
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.problems import run_problem
-from rollbot_oc.scenarios import load_bundled
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.scenarios.problem import run_problem
+from rollbot_oc.scenarios.bundled import load_bundled
 
 def test_structured_linearisation_as_a_graph_is_the_numeric_one():
     """``StructuredLinearisation.symbolic`` (what the C export generates) gives the numeric call's values."""
@@ -38,7 +38,7 @@ def test_the_exported_filter_is_the_numeric_one(n_shape_runs):
     measured attitude (``attitude_gain`` 1), over a recorded stretch of the N-shape (its first 3 s under the NMPC,
     from the session's shared run): the same tilt and covariance to 1e-12."""
     from rollbot_oc.control.nmpc.estimation import TiltEstimator
-    from rollbot_oc.dynamics import to_reduced
+    from rollbot_oc.model.dynamics import to_reduced
     from rollbot_oc.export.step import EMBEDDED_SETTINGS as s, _estimator_update, control_step
 
     params = RollbotParams()

@@ -5,7 +5,7 @@ import threading
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.fastcall import fast_map
+from rollbot_oc.core.fastcall import fast_map
 
 
 def test_fast_map_matches_function_map():

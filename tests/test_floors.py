@@ -15,14 +15,14 @@ import warnings
 import numpy as np
 import pytest
 
-from rollbot_oc.contact import NXC, SLIDE, STICK, contact_model
-from rollbot_oc.dynamics import NW, NX, OMEGA, POS, QUAT, THETA_DOT, rest_state, symbolic_model
-from rollbot_oc.errors import ConfigError
-from rollbot_oc.floor import Floor, FloorPatch, RollbotDeprecationWarning
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.problems import compute_metrics, problem_from_dict
-from rollbot_oc.scenarios import bundled_table
-from rollbot_oc.simulate import simulate
+from rollbot_oc.model.contact import NXC, SLIDE, STICK, contact_model
+from rollbot_oc.model.dynamics import NW, NX, OMEGA, POS, QUAT, THETA_DOT, rest_state, symbolic_model
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.simulation.floor import Floor, FloorPatch, RollbotDeprecationWarning
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.scenarios.problem import compute_metrics, problem_from_dict
+from rollbot_oc.scenarios.bundled import bundled_table
+from rollbot_oc.simulation.floor_plant import simulate
 
 BALL = RollbotParams(m=1e-10, k0=0.0)
 COULOMB = Floor("coulomb")
@@ -136,7 +136,7 @@ def test_large_friction_agrees_with_the_no_slip_plant():
 def test_large_friction_agrees_closed_loop():
     """The PID on the N-shape for 3 s: the same run on the rigid floor and on a floor of mu = 10."""
     problem = problem_from_dict(bundled_table("n_shape"), "n_shape")
-    from rollbot_oc.problems import run_problem
+    from rollbot_oc.scenarios.problem import run_problem
 
     rigid = run_problem(problem.__class__(**{**problem.__dict__, "params": problem.params.replace(mu=10.0)}),
                         "pid", duration=3.0, show_progress=False)

@@ -7,12 +7,12 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.missions import KINDS, Circle, Mission, gate_passes, mission_kind, register
 from rollbot_oc.missions.schema import number, point
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.problems import compute_metrics, problem_from_dict, run_problem
-from rollbot_oc.scenarios import bundled_table, load_bundled
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.scenarios.problem import compute_metrics, problem_from_dict, run_problem
+from rollbot_oc.scenarios.bundled import bundled_table, load_bundled
 
 GATES = {"name": "g", "kind": "gates", "duration": 60.0,
          "gates": {"points": [[0.8, 0.2], [0.9, 1.0], [0.1, 1.1]], "tolerance": 0.05}}
@@ -82,8 +82,8 @@ def test_gates_metrics_of_a_synthetic_run():
 
 def _line_run(problem):
     """A ``SimulationResult`` whose shell centre moves along y = 0.03 m at 0.5 m/s for 4 s, the robot upright."""
-    from rollbot_oc.dynamics import rest_state
-    from rollbot_oc.simulate import SimulationResult
+    from rollbot_oc.model.dynamics import rest_state
+    from rollbot_oc.simulation.plant import SimulationResult
 
     t = np.arange(0.0, 4.0 + 1e-9, 0.01)
     x = np.tile(rest_state(problem.params)[:, None], (1, t.size))

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.robot.faults import FaultSpec, FaultyLink, LinkStats
 from rollbot_oc.robot.protocol import Command, Decoder, encode
 from rollbot_oc.robot.transport import LinkSpec, Transport, open_link, parse_link

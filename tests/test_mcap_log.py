@@ -11,12 +11,12 @@ pytest.importorskip("mcap", reason="the mcap package is not installed (pip insta
 
 from mcap.reader import make_reader  # noqa: E402
 
-from rollbot_oc.cli import main  # noqa: E402
-from rollbot_oc.errors import ConfigError  # noqa: E402
-from rollbot_oc.mcap_log import CHANNELS, LogWriter, read_log, write_run_log  # noqa: E402
-from rollbot_oc.problems import run_problem  # noqa: E402
+from rollbot_oc.app.cli import main  # noqa: E402
+from rollbot_oc.core.errors import ConfigError  # noqa: E402
+from rollbot_oc.robot.log import CHANNELS, LogWriter, read_log, write_run_log  # noqa: E402
+from rollbot_oc.scenarios.problem import run_problem  # noqa: E402
 from rollbot_oc.robot.faults import FaultCounts, LinkStats  # noqa: E402
-from rollbot_oc.scenarios import load_bundled  # noqa: E402
+from rollbot_oc.scenarios.bundled import load_bundled  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -54,8 +54,8 @@ def n_shape_nmpc():
     """An NMPC for the N-shape's first stop, prepared (its routes built once for the module)."""
     from dataclasses import replace
 
-    from rollbot_oc.problems import make_controller
-    from rollbot_oc.scenarios import load_bundled
+    from rollbot_oc.scenarios.problem import make_controller
+    from rollbot_oc.scenarios.bundled import load_bundled
 
     base = load_bundled("n_shape")
     problem = replace(base, mission=base.mission.first(1))
@@ -84,9 +84,9 @@ def test_the_last_stop_reached_while_braking_is_held_at_rest(n_shape_nmpc):
     step that gives up while finishing brings it to rest the same way, counted as a brake."""
     import numpy as np
 
-    from rollbot_oc.dynamics import to_reduced
+    from rollbot_oc.model.dynamics import to_reduced
     from rollbot_oc.missions import StopMonitor
-    from rollbot_oc.simulate import Observation
+    from rollbot_oc.control.protocol import Observation
 
     nmpc, problem = n_shape_nmpc
     sup, s = nmpc.supervisor, nmpc.settings

@@ -7,14 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rollbot_oc.codegen import compiler
-from rollbot_oc.control.missions import Waypoints
+from rollbot_oc.model.codegen import compiler
+from rollbot_oc.missions import Waypoints
 from rollbot_oc.control.nmpc import NMPC, NMPCSettings, RTISolver, TiltEstimator, TrackingWeights
 from rollbot_oc.control.nmpc.supervisors import LegKind, StopsSupervisor
-from rollbot_oc.control.ocp import RestToRest, SolveFailed
-from rollbot_oc.dynamics import FULL, NZ, REDUCED
-from rollbot_oc.params import PARAM_INDEX, RollbotParams
-from rollbot_oc.problems import load_problem, make_controller, run_problem
+from rollbot_oc.planning.min_time import RestToRest, SolveFailed
+from rollbot_oc.model.dynamics import FULL, NZ, REDUCED
+from rollbot_oc.model.params import PARAM_INDEX, RollbotParams
+from rollbot_oc.scenarios.problem import load_problem, make_controller, run_problem
 
 from shared import same_problem
 
@@ -324,8 +324,8 @@ def test_the_filter_learns_the_masses_and_damping_the_robot_moves_with(factors):
     by a motor-acceleration sweep and measured exactly, the filter learns each factor within 3 % (measured:
     within 0.6 % for the masses, 2 % for the damping, which the sweep excites least; the exact model's stay
     within 0.5 % of 1): what the NMPC then plans and solves with."""
-    from rollbot_oc.dynamics import rest_state, to_reduced
-    from rollbot_oc.simulate import simulate
+    from rollbot_oc.model.dynamics import rest_state, to_reduced
+    from rollbot_oc.simulation.plant import simulate
 
     nominal = RollbotParams(slope=0.0)
     plant = _plant_with(nominal, factors)
@@ -351,7 +351,7 @@ def test_learning_in_closed_loop_is_not_biased_by_the_attitude_noise():
     1.4 %). From the measured attitude (``attitude_gain`` 1) its noise, in the prediction, its Jacobian and the
     commands that react to it, biased them (measured: the shell's mass 7.5 % high), and the whole course took 335 s
     instead of 60 s."""
-    from rollbot_oc.courses import random_course
+    from rollbot_oc.scenarios.courses import random_course
 
     course = random_course(seed=0, index=30)
     # its first two stops (the first reached at 14.4 s): the same run for 20 s, without planning legs it never starts
@@ -371,7 +371,7 @@ def test_the_shell_arrives_still_on_a_robot_that_sways():
     0b6ceff the approach without the weight ended in a sideways sway of the shell (39 mm/s at 6 s, a mode the
     motor cannot damp at rest) and the rest test passed at 18.3 s, against 8.85 s with it; since the first leg's refinement starts from the state the
     tracking NMPC predicts (b0f0160) the approach sways less: 6.01 s without the weight, 5.3 s with it."""
-    from rollbot_oc.courses import random_course
+    from rollbot_oc.scenarios.courses import random_course
 
     course = random_course(seed=0, index=73)
     first = course.problem.mission.first(1)  # the first stop alone: no leg planned ahead
@@ -391,7 +391,7 @@ def test_a_gentle_or_brisk_first_guess_reaches_the_first_stop_without_a_recovery
     short and need a recovery (first stop at 19.25 s), which made the gentle ride the default; that recovery came
     from the tracking starting warm after the refinement took over (``bench_robustness_result.md`` item 20).
     Now both reach the stop without one (measured: 5.52 s gentle, 5.3 s brisk)."""
-    from rollbot_oc.courses import random_course
+    from rollbot_oc.scenarios.courses import random_course
 
     course = random_course(seed=0, index=10)
     problem = replace(course.problem, mission=course.problem.mission.first(1), duration=12.0)
@@ -424,8 +424,8 @@ def test_the_first_leg_is_refined_also_from_a_fresh_guess():
 def test_the_filtered_attitude_ignores_the_quaternion_sign_and_restarts_after_a_gap():
     """The same attitude measured as -q gives the same filter (the model is even in q); after ``lose_track`` the
     prediction starts from the measured attitude again, as a fresh filter's does; gain 1 is the measurement."""
-    from rollbot_oc.dynamics import rest_state, to_reduced
-    from rollbot_oc.simulate import Sensor, simulate
+    from rollbot_oc.model.dynamics import rest_state, to_reduced
+    from rollbot_oc.simulation.plant import Sensor, simulate
 
     params = RollbotParams()
     result = simulate(rest_state(params), 0.5, params=params, accel=lambda t: 10.0 * math.sin(8.0 * t))
@@ -474,7 +474,7 @@ def without_timings(value):
 
 def test_the_same_seed_gives_the_same_json():
     """Late solves are judged by a modelled compute time: two runs agree in everything but the measured timings."""
-    from rollbot_oc.outputs import to_json
+    from rollbot_oc.core.outputs import to_json
 
     problem = load_problem(PROBLEMS / "circle_R050.toml").with_duration(8.0)
     runs = [run_problem(problem, "nmpc", seed=3).metrics for _ in range(2)]
@@ -488,8 +488,8 @@ _RUN_SCRIPT = """
 import sys
 from dataclasses import replace
 from pathlib import Path
-from rollbot_oc.outputs import to_json
-from rollbot_oc.problems import load_problem, run_problem
+from rollbot_oc.core.outputs import to_json
+from rollbot_oc.scenarios.problem import load_problem, run_problem
 problem = load_problem(Path(sys.argv[1]))
 problem = replace(problem, mission=problem.mission.first(1), duration=20.0)
 print(to_json(run_problem(problem, "nmpc", seed=3).metrics))
@@ -507,7 +507,7 @@ def _numpy_openblas() -> bool:
 def test_the_same_seed_gives_the_same_json_under_every_blas_kernel():
     """numpy's OpenBLAS picks its kernels by CPU (``OPENBLAS_CORETYPE`` forces one): the first N-shape stop with
     onboard sensing (the estimator, the tilt filter, the planner, the RTI steps) gives the same JSON under the SSE3
-    kernels as under this CPU's own. Before ``rollbot_oc.reproducible`` its stop error differed at 1e-8 m."""
+    kernels as under this CPU's own. Before ``rollbot_oc.core.reproducible`` its stop error differed at 1e-8 m."""
     import json
     import os
     import subprocess
@@ -528,7 +528,7 @@ def test_recovers_from_a_spin_and_a_push():
     """A 1 rad/s spin mid-leg and a 0.5 m push before the first stop: the NMPC replans from where the robot is and
     still reaches the stop at rest (without the replanning it never reached it in 120 s).  The first stop alone
     (the run is the two-stop run's until then); ``benchmarks/bench_recovery.py`` runs both stops."""
-    from rollbot_oc.simulate import Kick
+    from rollbot_oc.simulation.plant import Kick
 
     base = load_problem(PROBLEMS / "n_shape.toml")
     problem = replace(base, mission=base.mission.first(1), duration=60.0)
@@ -612,8 +612,8 @@ def test_the_first_refinement_starts_where_the_robot_will_be_not_where_the_guess
     motor at -7.4 rad/s where the guess has -3.0.  The refinement is planned from the state the tracking
     NMPC predicts for its handover: nearer the robot's true state then, in driving speed and position, than
     the guess's state is."""
-    from rollbot_oc.courses import random_course
-    from rollbot_oc.dynamics import to_reduced
+    from rollbot_oc.scenarios.courses import random_course
+    from rollbot_oc.model.dynamics import to_reduced
 
     launched, launch = [], StopsSupervisor._launch
 
@@ -640,7 +640,7 @@ def test_a_refined_leg_taking_over_is_tracked_from_itself_not_the_warm_start_of_
     between the motor's limits (+-30 rad/s^2) and the robot is 0.25 m off the new leg within a second, which
     costs a recovery (first stop reached at 17.6 s instead of 10.05 s).  The new leg's first step starts from
     the leg itself: the robot stays within 1.5 cm of it."""
-    from rollbot_oc.courses import random_course
+    from rollbot_oc.scenarios.courses import random_course
 
     course = random_course(seed=0, index=11)
     problem = replace(course.problem, mission=course.problem.mission.first(1), duration=2.6)
@@ -738,7 +738,7 @@ def test_one_constraint_reaches_every_problem_of_the_nmpc():
     """``NMPCSettings.constraints``: one line, and the legs the NMPC plans and its tracking problem keep it."""
     from rollbot_oc.control.nmpc.supervisors.stops import _rest_to_rest
     from rollbot_oc.control.nmpc.tracking import RTISolver
-    from rollbot_oc.dynamics import rest_state, to_reduced
+    from rollbot_oc.model.dynamics import rest_state, to_reduced
     from rollbot_oc.ocp.constraints import position_box
 
     lower, upper = np.array([-0.35, -0.35]), np.array([1.25, 1.25])

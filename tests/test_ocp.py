@@ -6,12 +6,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rollbot_oc.control.ocp import (
+from rollbot_oc.planning.min_time import (
     OCPSettings, OrbitEntry, RestToRest, SolveFailed, orbit_state, plan_waypoints, quasi_stable_guess,
 )
-from rollbot_oc.dynamics import RollbotModel, from_reduced, reduced_model, rest_state, to_reduced
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.simulate import simulate
+from rollbot_oc.model.dynamics import RollbotModel, from_reduced, reduced_model, rest_state, to_reduced
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.simulation.plant import simulate
 
 PARAMS = RollbotParams()
 
@@ -88,7 +88,7 @@ def test_quasi_stable_guesses_ramp_at_the_rates_asked():
 def test_the_last_start_can_be_the_quickest_guess_near_the_best():
     """``quick``: the last of the starts is the shortest simulated profile whose score is within ``quick`` of
     the best's (the others stay the best by score); without it, or for one start, the ranking is unchanged."""
-    from rollbot_oc.control.ocp import quasi_stable_guesses
+    from rollbot_oc.planning.min_time import quasi_stable_guesses
 
     z0, goal = to_reduced(rest_state(PARAMS, heading=2.0)), np.array([0.0, 1.2])
     ranked = quasi_stable_guesses(z0, goal, PARAMS, 40, 6)  # all six simulated, best score first
@@ -171,8 +171,8 @@ def test_a_balanced_state_stays_at_rest_on_a_slope():
     rolls away.  Independent of any OCP: the balanced attitude is found by a root-finder."""
     import casadi as ca
 
-    from rollbot_oc.dynamics import imbalance
-    from rollbot_oc.rotations import quat_multiply
+    from rollbot_oc.model.dynamics import imbalance
+    from rollbot_oc.model.rotations import quat_multiply
 
     slope = PARAMS.replace(slope=np.radians(3.0), slope_dir=np.radians(30.0))
     level_rest = to_reduced(rest_state(slope, heading=0.4))

@@ -7,13 +7,13 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from rollbot_oc.control.ocp import quasi_stable_guess
-from rollbot_oc.dynamics import REDUCED, RollbotModel, from_reduced, rest_state, to_reduced
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.planning.min_time import quasi_stable_guess
+from rollbot_oc.model.dynamics import REDUCED, RollbotModel, from_reduced, rest_state, to_reduced
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.ocp import OCP, FreeTime, bounded
 from rollbot_oc.ocp.constraints import at_rest, driving_speed, motor_accel, motor_torque, no_jump, no_slide
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.simulate import simulate
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.simulation.plant import simulate
 
 from legs import leg_problem as shared_leg
 
@@ -151,7 +151,7 @@ def test_qps_through_buffers_equal_qps_called_by_name():
     equal the named call's, for HPIPM and qrqp (HPIPM with its arrays bound once to one buffer and refilled
     in place: the step's largest entry off by 5, 10 and 15 on the second to fourth QP), and the Jacobian
     product of the feasibility check equals CasADi's.  Unknown inputs are refused by name."""
-    from rollbot_oc.problems import load_problem, make_controller
+    from rollbot_oc.scenarios.problem import load_problem, make_controller
 
     problem = load_problem(ROOT / "problems" / "n_shape.toml")
     solver = make_controller("nmpc", problem).solver

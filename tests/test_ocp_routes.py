@@ -12,10 +12,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from rollbot_oc.control.ocp import quasi_stable_guess
-from rollbot_oc.dynamics import rest_state, to_reduced
-from rollbot_oc.errors import NotConverged
-from rollbot_oc.params import RollbotParams
+from rollbot_oc.planning.min_time import quasi_stable_guess
+from rollbot_oc.model.dynamics import rest_state, to_reduced
+from rollbot_oc.core.errors import NotConverged
+from rollbot_oc.model.params import RollbotParams
 
 from legs import leg_problem
 

@@ -15,13 +15,13 @@ from types import SimpleNamespace
 
 import pytest
 
-from rollbot_oc.cli import main
+from rollbot_oc.app.cli import main
 from rollbot_oc.missions import Waypoints
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.problems import run_problem
-from rollbot_oc.scenarios import load_bundled
-from rollbot_oc.simulate import simulate
-from rollbot_oc.summary import compare_headline, run_verdict, text_table
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.scenarios.problem import run_problem
+from rollbot_oc.scenarios.bundled import load_bundled
+from rollbot_oc.simulation.plant import simulate
+from rollbot_oc.view.text import compare_headline, run_verdict, text_table
 
 ROOT = Path(__file__).parent.parent
 LONG_NUMBER = re.compile(r"\d\.\d{6,}")  # raw floats: 0.01009703228701816
@@ -71,7 +71,7 @@ def test_analysis_output_leads_with_what_was_found(capsys):
     assert lines[0] == "stable at 2 of 2 driving speeds (slow branch): recovery time 7.2 to 7.6 s"
     assert "recovery time (s)" in lines[1] and lines[3].split()[-2:] == ["7.56", "yes"]
     out = output(["problems"], capsys).out
-    from rollbot_oc.scenarios import bundled_names
+    from rollbot_oc.scenarios.bundled import bundled_names
 
     assert out.startswith(f"{len(bundled_names())} bundled scenarios") and "n_shape" in out
 
@@ -190,7 +190,7 @@ def test_run_progress_shows_on_a_terminal_and_nowhere_else(capsys, monkeypatch):
 
 def test_progress_on_a_real_terminal_only(tmp_path):
     """The command on a pseudo-terminal shows its progress on stderr; piped, stderr stays empty; stdout is JSON."""
-    argv = [sys.executable, "-m", "rollbot_oc.cli", "run", str(short_circle(tmp_path)), "--duration", "15", "--json"]
+    argv = [sys.executable, "-m", "rollbot_oc.app.cli", "run", str(short_circle(tmp_path)), "--duration", "15", "--json"]
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     piped = subprocess.run(argv, capture_output=True, text=True, env=env)
     assert piped.stderr == "rollbot-oc: failed: circle_R035: the run did not complete\n"

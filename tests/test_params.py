@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from rollbot_oc.params import PARAM_VECTOR_FIELDS, RollbotParams, load_params, save_params
+from rollbot_oc.model.params import PARAM_VECTOR_FIELDS, RollbotParams, load_params, save_params
 
 
 def test_defaults_are_the_paper_prototype():

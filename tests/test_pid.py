@@ -6,14 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rollbot_oc.control.missions import Circle, Waypoint, Waypoints
+from rollbot_oc.missions import Circle, Waypoint, Waypoints
 from rollbot_oc.control.pid import PIDGains, QuasiStablePID
 from rollbot_oc.control.waypoints import StopPredictor
-from rollbot_oc.experiments import open_loop_run
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.problems import load_problem, run_open_loop, run_problem
-from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_state
-from rollbot_oc.simulate import simulate
+from rollbot_oc.analysis.experiments import open_loop_run
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.scenarios.problem import load_problem, run_open_loop, run_problem
+from rollbot_oc.analysis.quasi_stable import RadiusMap, quasi_stable_state
+from rollbot_oc.simulation.plant import simulate
 
 from shared import same_problem
 
@@ -109,7 +109,7 @@ def test_radius_limits_must_fit_the_robot():
 def test_radius_limits_follow_the_robots_own_map():
     """A heavier, larger robot (R 0.15 m, M_s 1.2 kg, m 0.5 kg, r0 0.08 m) revolves on 0.15 to 2.2 m: the PID's
     limits come from its map (the prototype's fixed [0.13, 0.9] m would refuse it)."""
-    from rollbot_oc.quasi_stable import RadiusMap
+    from rollbot_oc.analysis.quasi_stable import RadiusMap
 
     heavy = RollbotParams().with_changes(R=0.15, M_s=1.2, m=0.5, r0=0.08)
     pid = QuasiStablePID(Circle([0, 0], 0.5), heavy)

@@ -6,7 +6,7 @@ import pytest
 from rollbot_oc.control.nmpc.planner import PendingPlan, Planner
 from rollbot_oc.control.nmpc.settings import Timing
 from rollbot_oc.control.nmpc.telemetry import Telemetry
-from rollbot_oc.control.ocp import Plan, SolveFailed
+from rollbot_oc.planning.min_time import Plan, SolveFailed
 
 
 def _plan(iterations: int) -> Plan:

@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rollbot_oc.control.missions import Circle, Waypoint, Waypoints
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.problems import load_problem, problem_from_dict
+from rollbot_oc.missions import Circle, Waypoint, Waypoints
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.scenarios.problem import load_problem, problem_from_dict
 
 PROBLEMS = Path(__file__).parent.parent / "problems"
 

@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from rollbot_oc.dynamics import RollbotModel
-from rollbot_oc.errors import ConfigError, NumericalFailure
-from rollbot_oc.experiments import open_loop_run
-from rollbot_oc import quasi_stable
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.quasi_stable import FULL_RESIDUAL_TOL, RadiusMap, quasi_stable_curve, quasi_stable_state
+from rollbot_oc.model.dynamics import RollbotModel
+from rollbot_oc.core.errors import ConfigError, NumericalFailure
+from rollbot_oc.analysis.experiments import open_loop_run
+from rollbot_oc.analysis import quasi_stable
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.analysis.quasi_stable import FULL_RESIDUAL_TOL, RadiusMap, quasi_stable_curve, quasi_stable_state
 
 OMEGAS = np.linspace(0.0, 3 * np.pi, 200)
 

@@ -20,15 +20,15 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from rollbot_oc import cli
-from rollbot_oc.cli import main
-from rollbot_oc.dynamics import rest_state
-from rollbot_oc.errors import ConfigError, Interrupted, NotConverged, NumericalFailure, interruptible
-from rollbot_oc.outputs import OutputFolder, atomic_write_text, file_mode, to_json, write_json
-from rollbot_oc.params import RollbotParams, load_params
-from rollbot_oc.problems import check_duration, load_problem, problem_from_dict
-from rollbot_oc.scenarios import bundled_names, load_scenario
-from rollbot_oc.simulate import SimulationResult, simulate
+from rollbot_oc.app import cli
+from rollbot_oc.app.cli import main
+from rollbot_oc.model.dynamics import rest_state
+from rollbot_oc.core.errors import ConfigError, Interrupted, NotConverged, NumericalFailure, interruptible
+from rollbot_oc.core.outputs import OutputFolder, atomic_write_text, file_mode, to_json, write_json
+from rollbot_oc.model.params import RollbotParams, load_params
+from rollbot_oc.scenarios.problem import check_duration, load_problem, problem_from_dict
+from rollbot_oc.scenarios.bundled import bundled_names, load_scenario
+from rollbot_oc.simulation.plant import SimulationResult, simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 CIRCLE = {"name": "c", "kind": "circle", "duration": 10.0, "circle": {"radius": 0.35}}
@@ -67,17 +67,17 @@ def circle_file(tmp_path, **changes) -> Path:
 @pytest.fixture
 def no_computing(monkeypatch):
     """Make every long computation fail loudly: an error must be found before any of them starts."""
-    import rollbot_oc.experiments
-    import rollbot_oc.plots
-    import rollbot_oc.problems
-    import rollbot_oc.quasi_stable
+    import rollbot_oc.analysis.experiments
+    import rollbot_oc.view.plots
+    import rollbot_oc.scenarios.problem
+    import rollbot_oc.analysis.quasi_stable
 
     def computed(*args, **kwargs):
         raise AssertionError("computed before checking the output folder")
 
-    for module, name in [(rollbot_oc.problems, "run_problem"), (rollbot_oc.problems, "run_open_loop"),
-                         (rollbot_oc.problems, "compare"), (rollbot_oc.experiments, "open_loop_run"),
-                         (rollbot_oc.quasi_stable, "quasi_stable_curve"), (rollbot_oc.plots, "plot_top_view")]:
+    for module, name in [(rollbot_oc.scenarios.problem, "run_problem"), (rollbot_oc.scenarios.problem, "run_open_loop"),
+                         (rollbot_oc.scenarios.problem, "compare"), (rollbot_oc.analysis.experiments, "open_loop_run"),
+                         (rollbot_oc.analysis.quasi_stable, "quasi_stable_curve"), (rollbot_oc.view.plots, "plot_top_view")]:
         monkeypatch.setattr(module, name, computed)
 
 
@@ -166,7 +166,7 @@ def test_3_one_range_for_file_and_option(tmp_path):
 
 
 def test_3_zero_duration_is_not_the_file_duration():
-    from rollbot_oc.problems import run_problem
+    from rollbot_oc.scenarios.problem import run_problem
 
     problem = problem_from_dict(CIRCLE)
     with pytest.raises(ConfigError, match="duration"):
@@ -270,7 +270,7 @@ def test_8_stability_non_convergence_exits_1_like_quasi(tmp_path, capsys):
 
 
 def test_8_stability_curve_raises_a_numerical_failure():
-    from rollbot_oc.stability import stability_curve
+    from rollbot_oc.analysis.stability import stability_curve
 
     with pytest.raises(NumericalFailure, match="no quasi-stable state"):
         stability_curve([2.0, 9.0], RollbotParams(k0=0.02534))
@@ -307,7 +307,7 @@ def test_8_debug_shows_the_traceback_of_an_internal_error(monkeypatch, capsys):
 
 
 def test_8_user_value_errors_are_config_errors():
-    from rollbot_oc.quasi_stable import RadiusMap, quasi_stable_curve
+    from rollbot_oc.analysis.quasi_stable import RadiusMap, quasi_stable_curve
 
     with pytest.raises(ConfigError, match="omega0"):
         quasi_stable_curve([-1.0])
@@ -341,7 +341,7 @@ def test_9_quasi_failure_prints_null_not_nan(tmp_path, capsys):
 CODEGEN_SCRIPT = """
 import sys, warnings
 import casadi as ca
-from rollbot_oc.codegen import compiled
+from rollbot_oc.model.codegen import compiled
 warnings.simplefilter("always")
 x = ca.SX.sym("x", 3)
 f = compiled(ca.Function("reliability_test", [x], [2 * ca.sin(x)]))
@@ -403,7 +403,7 @@ def test_10_two_processes_compile_once(tmp_path):
 def test_10_compiler_search_includes_clang(monkeypatch):
     import shutil
 
-    from rollbot_oc import codegen
+    from rollbot_oc.model import codegen
 
     monkeypatch.delenv("CC", raising=False)
     monkeypatch.setattr(shutil, "which", lambda name: "/usr/bin/clang" if name == "clang" else None)
@@ -475,9 +475,9 @@ def test_12_run_takes_a_bundled_name(tmp_path, monkeypatch):
 
 
 def test_12_demo_reads_its_scenario_through_importlib_resources():
-    source = (ROOT / "rollbot_oc" / "report.py").read_text()
+    source = (ROOT / "rollbot_oc" / "app" / "report.py").read_text()
     assert "problems/" not in source and 'load_bundled("n_shape"' in source
-    assert "importlib.resources.files" in (ROOT / "rollbot_oc" / "scenarios.py").read_text()
+    assert "importlib.resources.files" in (ROOT / "rollbot_oc" / "scenarios" / "bundled.py").read_text()
 
 
 # 13 ------------------------------------------------------------------------------------------------------------
@@ -598,7 +598,7 @@ def test_params_reject_junk_values(tmp_path):
 
 
 def test_open_loop_failure_is_a_row_of_nulls(monkeypatch, capsys):
-    import rollbot_oc.experiments as experiments
+    import rollbot_oc.analysis.experiments as experiments
 
     def slips(omega0, params, **kwargs):
         raise NumericalFailure(f"open loop at omega0 = {omega0} rad/s: the robot left the no-slip model", "slide")

@@ -6,11 +6,11 @@ import json
 import numpy as np
 from PIL import Image
 
-from rollbot_oc import problems
-from rollbot_oc.animate import animate_run
-from rollbot_oc.cli import main
-from rollbot_oc.dynamics import rest_state
-from rollbot_oc.simulate import SimulationResult, simulate
+from rollbot_oc.scenarios import problem as problems
+from rollbot_oc.view.animate import animate_run
+from rollbot_oc.app.cli import main
+from rollbot_oc.model.dynamics import rest_state
+from rollbot_oc.simulation.plant import SimulationResult, simulate
 
 from shared import same_problem
 

@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from rollbot_oc.reproducible import dot, matmul, norm, solve, unit
+from rollbot_oc.core.reproducible import dot, matmul, norm, solve, unit
 
 finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
 

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from rollbot_oc.codegen import compiler
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.model.codegen import compiler
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.robot import protocol as P
 from rollbot_oc.robot.protocol import (
     Command, Decoder, Heartbeat, Measurement, Mode, PlanAssembler, PlanChunk, decode_frame, encode, split_plan,

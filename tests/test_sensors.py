@@ -5,14 +5,14 @@ import math
 import numpy as np
 import pytest
 
-from rollbot_oc.dynamics import OMEGA, POS, QUAT, rest_state
-from rollbot_oc.errors import ConfigError
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.rotations import quat_to_matrix_np
-from rollbot_oc.sensors import (
+from rollbot_oc.model.dynamics import OMEGA, POS, QUAT, rest_state
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.model.rotations import quat_to_matrix_np
+from rollbot_oc.simulation.sensors import (
     G0, EncoderModel, ImuModel, MocapModel, OnboardSensors, SensingConfig, body_signals,
 )
-from rollbot_oc.simulate import plant_step, simulate
+from rollbot_oc.simulation.plant import plant_step, simulate
 
 
 def signals(x, a, params):

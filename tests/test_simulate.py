@@ -3,10 +3,11 @@
 import numpy as np
 import pytest
 
-from rollbot_oc.dynamics import OMEGA, POS, QUAT, THETA_DOT, RollbotModel, rest_state
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.rotations import matrix_to_quat_np, quat_to_matrix_np, rot_x_np, rot_z_np
-from rollbot_oc.simulate import Command, ControllerBase, Sensor, SimulationResult, plant_step, simulate
+from rollbot_oc.model.dynamics import OMEGA, POS, QUAT, THETA_DOT, RollbotModel, rest_state
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.model.rotations import matrix_to_quat_np, quat_to_matrix_np, rot_x_np, rot_z_np
+from rollbot_oc.control.protocol import Command, ControllerBase
+from rollbot_oc.simulation.plant import Sensor, SimulationResult, plant_step, simulate
 
 
 def tilted_spinning_state(params):

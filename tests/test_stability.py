@@ -6,11 +6,11 @@ import control
 import numpy as np
 import pytest
 
-from rollbot_oc.experiments import damped_modes
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.quasi_stable import _curve, _states, quasi_stable_state
-from rollbot_oc.simulate import simulate
-from rollbot_oc.stability import linearise, perturbed_state, stability, stability_curve, state_space
+from rollbot_oc.analysis.experiments import damped_modes
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.analysis.quasi_stable import _curve, _states, quasi_stable_state
+from rollbot_oc.simulation.plant import simulate
+from rollbot_oc.analysis.stability import linearise, perturbed_state, stability, stability_curve, state_space
 
 
 @pytest.fixture(scope="module")
@@ -134,7 +134,7 @@ def test_sideways_sway_is_uncontrollable_at_rest():
     Why the NMPC must arrive without sway: held at rest, a swaying robot only waits for the sway to decay."""
     import casadi as ca
 
-    from rollbot_oc.dynamics import NZ, reduced_model, rest_state, to_reduced
+    from rollbot_oc.model.dynamics import NZ, reduced_model, rest_state, to_reduced
 
     params = RollbotParams()
     model = reduced_model()

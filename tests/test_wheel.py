@@ -59,7 +59,7 @@ def test_wheel_ships_the_scenarios_and_runs_from_another_folder(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(site), "ROLLBOT_OC_CACHE": str(tmp_path / "cache")}
 
     def rollbot_oc(*args):
-        return subprocess.run([sys.executable, "-m", "rollbot_oc.cli", *args], cwd=elsewhere, env=env,
+        return subprocess.run([sys.executable, "-m", "rollbot_oc.app.cli", *args], cwd=elsewhere, env=env,
                               capture_output=True, text=True, timeout=300)
 
     where = subprocess.run([sys.executable, "-c", "import rollbot_oc; print(rollbot_oc.__file__)"], cwd=elsewhere,

@@ -1,4 +1,4 @@
-"""Closed-loop cases: a controller on a random course (``rollbot_oc.courses``), or the course's time bound.
+"""Closed-loop cases: a controller on a random course (``rollbot_oc.scenarios.courses``), or the course's time bound.
 
 Spec table::
 
@@ -8,7 +8,7 @@ Spec table::
     controllers    = ["pid", "nmpc"]   # each runs every course; "bound" adds the minimum-time bound
     stop_tolerance = 0.07              # m: a stop further than this from its waypoint fails the run
     duration       = 600.0             # optional, s, in [1, 3600]: every course's duration (default:
-                                       # derived from the course's length, rollbot_oc.courses)
+                                       # derived from the course's length, rollbot_oc.scenarios.courses)
     [closed_loop.ranges]               # optional: narrower ranges to draw from (CourseRanges fields)
     slope_deg = [0.0, 1.0]
 
@@ -18,16 +18,20 @@ noise.  A run *succeeds* when it completed (every stop reached, no contact
 event), every stop is within ``stop_tolerance`` of its waypoint and neither
 the motor's torque nor its speed limit was exceeded; otherwise its row says
 why (``error``).  The pseudo-controller ``bound`` computes the course's
-minimum-time bound (``rollbot_oc.bounds``) on the plant, so that the
+minimum-time bound (``rollbot_oc.scenarios.bounds``) on the plant, so that the
 summary can divide each run's completion time by it.
 """
 
 from __future__ import annotations
 
 from rollbot_oc.campaign.case import Outcome, describe, register
-from rollbot_oc.courses import CourseRanges, random_course
-from rollbot_oc.errors import ConfigError
-from rollbot_oc.problems import CONTROLLERS, _check_keys, _number, check_duration
+from rollbot_oc.scenarios.courses import CourseRanges, random_course
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.scenarios.problem import CONTROLLERS, _check_keys, _number, check_duration
+from rollbot_oc.campaign import figures
+from rollbot_oc.campaign.summary import quantiles
+from rollbot_oc.scenarios.bounds import minimum_time_bound
+from rollbot_oc.scenarios.problem import run_problem
 
 __all__ = ["ClosedLoopKind", "BOUND"]
 
@@ -119,7 +123,6 @@ class ClosedLoopKind:
         try:
             if inputs["controller"] == BOUND:
                 return self._bound(problem, drawn)
-            from rollbot_oc.problems import run_problem
 
             run = run_problem(problem, inputs["controller"], seed=course.noise_seed, params=course.believed)
         except Exception as exc:  # the row keeps what was drawn, and the error
@@ -128,8 +131,6 @@ class ClosedLoopKind:
 
     @staticmethod
     def _bound(problem, drawn: dict) -> Outcome:
-        from rollbot_oc.bounds import minimum_time_bound
-
         bound = minimum_time_bound(problem.params, problem.initial_state(), problem.mission.stops)
         stops = len(problem.mission.stops)
         return Outcome({"completed": True, "completion_time": bound.total, "stops_reached": stops,
@@ -168,7 +169,6 @@ class ClosedLoopKind:
     def summarise(self, table) -> dict:
         """Per controller (``controllers``): success rate, stop errors (m, every stop reached), completion times
         (s, successful runs) and their ratio to the course's bound; ``bound``: the bounds planned (s)."""
-        from rollbot_oc.campaign.summary import quantiles
 
         ratios = time_ratios(table)
         out, bound = {}, {}
@@ -189,7 +189,6 @@ class ClosedLoopKind:
 
     def figures(self, table, folder) -> list:
         """Success rate against each varied input, histograms of stop errors and of time ratios."""
-        from rollbot_oc.campaign import figures
 
         runs = table[table["controller"] != BOUND]
         ratios = time_ratios(table)

@@ -24,10 +24,19 @@ from __future__ import annotations
 import math
 
 from rollbot_oc.campaign.case import Outcome, register
-from rollbot_oc.campaign.spec import grid_cases
-from rollbot_oc.errors import ConfigError, NumericalFailure
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.problems import _check_damping, _check_keys, _number, _table
+from rollbot_oc.campaign.grid import grid_cases
+from rollbot_oc.core.errors import ConfigError, NumericalFailure
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.missions.schema import check_keys as _check_keys
+from rollbot_oc.missions.schema import number as _number
+from rollbot_oc.missions.schema import table as _table
+from rollbot_oc.scenarios.problem import _check_damping
+from rollbot_oc.analysis.design import design_point
+from rollbot_oc.analysis.design import grid_trend
+from rollbot_oc.analysis.design import pareto_mask
+from rollbot_oc.campaign import figures
+from rollbot_oc.core.outputs import json_ready
+from rollbot_oc.scenarios.bounds import n_shape_bound
 
 __all__ = ["DesignKind", "OBJECTIVES"]
 
@@ -107,7 +116,6 @@ class DesignKind:
 
     def run(self, inputs: dict, seed: int) -> Outcome:
         """Analyse one design (and plan its N-shape bound if asked)."""
-        from rollbot_oc.design import design_point
 
         values = {key: value for key, value in inputs.items() if key != "reference"}
         params = self.base if inputs["reference"] else self.params(values)
@@ -123,8 +131,6 @@ class DesignKind:
         if not point.stable:
             causes.append("a quasi-stable state is unstable")
         if self.n_shape_bound:
-            from rollbot_oc.bounds import n_shape_bound
-
             try:
                 bound = n_shape_bound(params)
                 metrics.update(n_shape_bound=bound.total, n_shape_legs=list(bound.legs))
@@ -135,7 +141,6 @@ class DesignKind:
     def summarise(self, table) -> dict:
         """The reference design, the Pareto front of the designs that succeeded (objectives ``OBJECTIVES``
         that were computed) and how each metric moves along each axis of the grid (``grid_trend``)."""
-        from rollbot_oc.design import grid_trend
 
         shown = list(self.axes) + ["radius_range", "radius_ratio", "tau_max", "n_shape_bound"]
         reference = table[table["reference"] == True]  # noqa: E712 (a column of booleans)
@@ -150,7 +155,6 @@ class DesignKind:
 
     def figures(self, table, folder) -> list:
         """A 2-D map of the metrics (for two varied axes) and the Pareto front, reference marked."""
-        from rollbot_oc.campaign import figures
 
         paths = [figures.plot_pareto(table, pareto_front(table), folder / "pareto.png")]
         if len(self.axes) == 2:
@@ -166,7 +170,6 @@ def objectives(table) -> list[tuple[str, bool]]:
 
 def pareto_front(table):
     """The rows of the designs that succeeded and that no other beats in every objective, by radius range."""
-    from rollbot_oc.design import pareto_mask
 
     ok = table[table["status"] == "succeeded"]
     chosen = objectives(ok) if len(ok) else []
@@ -182,7 +185,6 @@ def _trend_text(trend: dict) -> str:
 
 def _records(frame) -> list[dict]:
     """Rows as plain dicts (NaN as None)."""
-    from rollbot_oc.outputs import json_ready
 
     return json_ready([{k: (v.item() if hasattr(v, "item") else v) for k, v in row.items()}
                        for row in frame.to_dict("records")])

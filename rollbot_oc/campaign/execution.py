@@ -29,7 +29,9 @@ from pathlib import Path
 from rollbot_oc.campaign.case import Outcome, describe
 from rollbot_oc.campaign.function import plain
 from rollbot_oc.campaign.store import CASE_COLUMNS, OUTCOME_COLUMNS, RUN_COLUMNS, WORKER_FAILURE
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
+import logging
+import uuid
 
 __all__ = ["execute", "executor", "check_workers", "code_fingerprint", "default_workers", "SCHEDULER_VARIABLE",
            "MAX_WORKERS"]
@@ -136,9 +138,8 @@ class _Dask:
                               "source tree)")
 
     def run(self, cases):
-        import uuid
 
-        from distributed import as_completed
+        from distributed import as_completed  # optional extra [scale]: only a run on Dask needs it
 
         kind = self.client.scatter(self.kind, broadcast=True, hash=False)
         token = uuid.uuid4().hex[:8]
@@ -173,11 +174,10 @@ def executor(kind, workers: int | None = None, scheduler: str | None = None):
         yield _InProcess(kind)
         return
     try:
-        from distributed import Client, LocalCluster
+        from distributed import Client, LocalCluster  # optional extra [scale], as above
     except ImportError:
         raise ConfigError("running on Dask needs the extra 'scale': pip install 'rollbot_oc[scale]' "
                           "(or --workers 1 to run in this process)") from None
-    import logging
 
     if scheduler:
         try:

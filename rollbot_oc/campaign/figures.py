@@ -1,4 +1,4 @@
-"""Figures of a campaign's table, in the toolkit's style (``rollbot_oc.plots``), each written whole.
+"""Figures of a campaign's table, in the toolkit's style (``rollbot_oc.view.plots``), each written whole.
 
 * ``plot_success_rates``: success rate against each input that varies
   (its values, or six bins of equal count), one line per group (controller);
@@ -19,7 +19,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
-from rollbot_oc.plots import TARGET, save_figure
+from rollbot_oc.view.plots import TARGET, save_figure
 
 __all__ = ["plot_success_rates", "plot_closed_loop_histograms", "plot_pareto", "plot_design_map"]
 

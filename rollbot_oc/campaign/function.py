@@ -28,9 +28,10 @@ from collections.abc import Mapping
 import numpy as np
 
 from rollbot_oc.campaign.case import Outcome, register
-from rollbot_oc.campaign.spec import grid_cases
-from rollbot_oc.errors import ConfigError
-from rollbot_oc.problems import _check_keys
+from rollbot_oc.campaign.grid import grid_cases
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.missions.schema import check_keys as _check_keys
+from rollbot_oc.campaign import figures
 
 __all__ = ["FunctionKind", "plain", "resolve_target"]
 
@@ -150,6 +151,5 @@ class FunctionKind:
 
     def figures(self, table, folder) -> list:
         """Success rate against each varied input."""
-        from rollbot_oc.campaign import figures
 
         return [figures.plot_success_rates(table, self.input_columns, None, folder / "success_rates.png")]

@@ -27,7 +27,7 @@ from tqdm.auto import tqdm
 from rollbot_oc.campaign.execution import check_workers, executor
 from rollbot_oc.campaign.store import ResultStore
 from rollbot_oc.campaign.summary import summarise, summary_markdown
-from rollbot_oc.outputs import OutputFolder, atomic_write_text, write_json
+from rollbot_oc.core.outputs import OutputFolder, atomic_write_text, write_json
 
 __all__ = ["run_campaign", "CampaignResult"]
 

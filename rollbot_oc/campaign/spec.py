@@ -13,24 +13,26 @@ Schema (the README documents every kind's table)::
 Everything is checked on load: an unknown key or table, a missing key, a
 value of the wrong type or out of its range raises a ``ConfigError`` (a
 ``ValueError``) in one line naming the file, the key, the value and the valid
-range, before any case runs.  ``grid_values`` and ``grid_cases`` are the
-shared reading of a grid of values (a list, or ``{from, to, steps}``).
+range, before any case runs.  A grid of values (a list, or ``{from, to, steps}``) is read by
+``campaign.grid``.
 """
 
 from __future__ import annotations
 
-import itertools
-import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from rollbot_oc.campaign.case import KINDS, Case, case_id, case_seed
-from rollbot_oc.errors import ConfigError
-from rollbot_oc.params import read_toml
-from rollbot_oc.problems import _check_keys, _check_name, _number, _table
+from rollbot_oc.campaign.function import FunctionKind
+from rollbot_oc.campaign.grid import grid_cases, grid_values
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.model.params import read_toml
+from rollbot_oc.missions.schema import check_keys as _check_keys
+from rollbot_oc.missions.schema import table as _table
+from rollbot_oc.scenarios.problem import _check_name
+from rollbot_oc.scenarios.bundled import _folder
+from rollbot_oc.scenarios.bundled import file_or_bundled
 
 __all__ = ["Campaign", "load_campaign", "campaign_from_dict", "load_campaign_spec", "bundled_campaigns",
            "bundled_campaign_table",
@@ -38,7 +40,6 @@ __all__ = ["Campaign", "load_campaign", "campaign_from_dict", "load_campaign_spe
 
 MAX_SEED = 2**32 - 1
 MAX_CASES = 1_000_000  # a campaign's cases are listed up front: a bound that catches a typo, not a real study
-MAX_STEPS = 10_000  # points of one grid axis
 
 
 @dataclass(frozen=True)
@@ -93,8 +94,6 @@ class Campaign:
         The function must be importable by the workers (a module on their
         path) or picklable by value; see ``rollbot_oc.campaign.function``.
         """
-        from rollbot_oc.campaign.function import FunctionKind
-
         _check_name(name, "campaign")
         return cls(name, FunctionKind(function, [dict(c) for c in cases]), _seed(seed, "campaign"), description,
                    f"campaign {name}")
@@ -140,8 +139,6 @@ def load_campaign(path: str | Path) -> Campaign:
 
 
 def _bundled_folder():
-    from rollbot_oc.scenarios import _folder
-
     return _folder().joinpath("campaigns")
 
 
@@ -173,7 +170,6 @@ def load_campaign_spec(text: str) -> Campaign:
     ConfigError
         If it is neither (the bundled specs are listed), or the file is bad.
     """
-    from rollbot_oc.scenarios import file_or_bundled
 
     path, name = file_or_bundled(text, "campaign spec", bundled_campaigns(), ("campaigns", "problems/campaigns"))
     if path is not None:
@@ -182,41 +178,3 @@ def load_campaign_spec(text: str) -> Campaign:
         return campaign_from_dict(bundled_campaign_table(name), f"bundled campaign {name}")
     raise ConfigError(f"campaign spec {text!r}: no such file, and no bundled spec of that name; bundled are "
                       f"{', '.join(bundled_campaigns()) or 'none'}")
-
-
-def grid_values(value, where: str, low: float = -math.inf, high: float = math.inf) -> list[float]:
-    """The values of one grid axis: a non-empty list of numbers, or ``{from, to, steps}`` (evenly spaced).
-
-    Raises
-    ------
-    ConfigError
-        Naming ``where``, the value and the valid form or range.
-    """
-    if isinstance(value, dict):
-        _check_keys(value, {"from", "to", "steps"}, where)
-        first = _number(value, "from", where, low, high, required=True)
-        last = _number(value, "to", where, low, high, required=True)
-        steps = _number(value, "steps", where, 1, MAX_STEPS, integer=True, required=True)
-        return [float(v) for v in np.linspace(first, last, steps)]
-    if not (isinstance(value, list) and value):
-        raise ConfigError(f"{where} = {value!r} must be a non-empty list of numbers or a table "
-                          "{from = ..., to = ..., steps = ...}")
-    for v in value:
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise ConfigError(f"{where}: value {v!r} must be a finite number")
-        if not low <= v <= high:
-            raise ConfigError(f"{where}: value {v!r} is out of range: valid is [{low:g}, {high:g}]")
-    return [float(v) for v in value]
-
-
-def grid_cases(grid: dict, where: str, check=None) -> list[dict]:
-    """Every combination of a grid's axes (the first axis varies slowest), as input dicts.
-
-    ``check(key, values, where)`` reads one axis (default ``grid_values`` without a range).
-    """
-    if not isinstance(grid, dict) or not grid:
-        raise ConfigError(f"{where}: must be a table of at least one axis (key = [values] or "
-                          "{from, to, steps})")
-    axes = {key: (check or (lambda k, v, w: grid_values(v, w)))(key, value, f"{where} key '{key}'")
-            for key, value in grid.items()}
-    return [dict(zip(axes, combination)) for combination in itertools.product(*axes.values())]

@@ -30,8 +30,8 @@ import json
 import time
 from pathlib import Path
 
-from rollbot_oc.errors import ConfigError
-from rollbot_oc.outputs import atomic_write_bytes
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.core.outputs import atomic_write_bytes
 
 __all__ = ["ResultStore", "columns", "RUN_COLUMNS", "WORKER_FAILURE", "CASE_COLUMNS", "OUTCOME_COLUMNS"]
 
@@ -94,7 +94,7 @@ class ResultStore:
 
     def rows(self) -> dict[str, dict]:
         """Rows on disk by case id (the last written wins), the cases the infrastructure lost included."""
-        import pyarrow.parquet as pq
+        import pyarrow.parquet as pq  # optional extra [scale]: only the tables need it
 
         rows = {}
         for path in self._part_files():
@@ -142,7 +142,7 @@ class ResultStore:
         The case index is the campaign's (a row written under another spec takes its new position).  A case the
         infrastructure lost is an ``error`` row starting with ``WORKER_FAILURE`` (run again on the next start).
         """
-        import pandas as pd
+        import pandas as pd  # optional extra [scale], as above
 
         found = self.rows()
         rows = []
@@ -160,8 +160,8 @@ class ResultStore:
 
 def _parquet(rows: list[dict], names: list[str] | None = None) -> bytes:
     """Parquet bytes of plain rows; a column whose values have no common type is stored as JSON text."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
+    import pyarrow as pa  # optional extra [scale], as above
+    import pyarrow.parquet as pq  # optional extra [scale], as above
 
     names = names or list(dict.fromkeys(key for row in rows for key in row))
     arrays = {}

@@ -36,10 +36,10 @@ import numpy as np
 
 from rollbot_oc.control.waypoints import WaypointLayer
 from rollbot_oc.missions import centre_of_curvature
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.quasi_stable import RadiusMap
-from rollbot_oc.reproducible import dot
-from rollbot_oc.simulate import Command, ControllerBase, Observation
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.analysis.quasi_stable import RadiusMap
+from rollbot_oc.core.reproducible import dot
+from rollbot_oc.control.protocol import Command, ControllerBase, Observation
 
 __all__ = ["PIDGains", "QuasiStablePID"]
 

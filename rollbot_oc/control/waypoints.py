@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from rollbot_oc.missions import PassMonitor, StopMonitor
-from rollbot_oc.quasi_stable import RadiusMap
-from rollbot_oc.reproducible import norm
+from rollbot_oc.analysis.quasi_stable import RadiusMap
+from rollbot_oc.core.reproducible import norm
 
 __all__ = ["StopPredictor", "Target", "WaypointLayer"]
 

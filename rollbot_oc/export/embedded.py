@@ -13,8 +13,8 @@ import numpy as np
 
 from rollbot_oc.export.reference import EmbeddedReference
 from rollbot_oc.export.step import STATUS, StepFunction
-from rollbot_oc.fastcall import FastFunction
-from rollbot_oc.simulate import Command, ControllerBase, Observation
+from rollbot_oc.core.fastcall import FastFunction
+from rollbot_oc.control.protocol import Command, ControllerBase, Observation
 
 __all__ = ["EmbeddedController", "EmbeddedBase"]
 

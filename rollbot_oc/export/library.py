@@ -12,9 +12,9 @@ import ctypes
 import hashlib
 from pathlib import Path
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.export.embedded import EmbeddedBase
-from rollbot_oc.simulate import Command, Observation
+from rollbot_oc.control.protocol import Command, Observation
 
 __all__ = ["CController", "LIBRARY"]
 

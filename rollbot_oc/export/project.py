@@ -36,11 +36,14 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.control.nmpc.settings import NMPCSettings
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.export.embedded import EmbeddedController
 from rollbot_oc.export.reference import EmbeddedReference, plan_reference
 from rollbot_oc.export.step import EMBEDDED_SETTINGS, StepFunction, control_step
-from rollbot_oc.outputs import OutputFolder, atomic_write_text, to_json
+from rollbot_oc.core.outputs import OutputFolder, atomic_write_text, to_json
+from rollbot_oc.model.codegen import compiler
+from rollbot_oc.scenarios.problem import run_problem
+import shutil
 
 __all__ = ["export_c", "ExportResult", "build", "HAND_WRITTEN", "LOG_NAME", "BUILD_TIMEOUT"]
 
@@ -60,7 +63,7 @@ class ExportResult:
     step : StepFunction
     reference : EmbeddedReference
     metrics : dict
-        The recorded closed-loop run of the Python embedded controller (``problems.compute_metrics``).
+        The recorded closed-loop run of the Python embedded controller (``scenarios.problem.compute_metrics``).
     log : numpy.ndarray (periods, 14)
         Measurement (12), command (rad/s^2) and status of every period of that run.
     sizes : dict
@@ -234,14 +237,13 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
         ``RECORD_FACTOR`` times the planned legs' duration and ``RECORD_MARGIN`` seconds (within the
         problem's duration).
     show_progress : bool or None
-        Progress of the recorded run on stderr (as for ``problems.run_problem``).
+        Progress of the recorded run on stderr (as for ``scenarios.problem.run_problem``).
 
     Raises
     ------
     ConfigError
         If ``out`` cannot be a folder, the problem is not a course of stops or a leg cannot be planned.
     """
-    from rollbot_oc.problems import run_problem
 
     folder = OutputFolder(out)  # checked and created before anything is computed
     s = settings or EMBEDDED_SETTINGS
@@ -284,9 +286,7 @@ def build(folder, target: str | None = None, jobs: int = 1) -> subprocess.Comple
     ConfigError
         If there is no ``make`` or no C compiler.
     """
-    import shutil
 
-    from rollbot_oc.codegen import compiler
 
     if shutil.which("make") is None or compiler() is None:
         raise ConfigError("building the exported controller needs make and a C compiler (cc, gcc or clang)")

@@ -24,11 +24,11 @@ import numpy as np
 from rollbot_oc.control.nmpc.supervisors.stops import _rest_to_rest
 from rollbot_oc.control.nmpc.reference import Reference
 from rollbot_oc.control.nmpc.settings import NMPCSettings
-from rollbot_oc.control.ocp import SolveFailed
-from rollbot_oc.dynamics import NZ, REDUCED, to_reduced
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.planning.min_time import SolveFailed
+from rollbot_oc.model.dynamics import NZ, REDUCED, to_reduced
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.export.step import EMBEDDED_SETTINGS
-from rollbot_oc.params import RollbotParams
+from rollbot_oc.model.params import RollbotParams
 
 __all__ = ["EmbeddedReference", "plan_reference"]
 

@@ -55,10 +55,10 @@ import numpy as np
 from rollbot_oc.control.nmpc.estimation import TiltEstimator
 from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.tracking import RTISolver, tracking_problem
-from rollbot_oc.dynamics import NZ, OMEGA, POS, QUAT, REDUCED, THETA, THETA_DOT, motor_speed_clip, symbolic_model
+from rollbot_oc.model.dynamics import NZ, OMEGA, POS, QUAT, REDUCED, THETA, THETA_DOT, motor_speed_clip, symbolic_model
 from rollbot_oc.missions.stops import StopRule
-from rollbot_oc.params import TILT, ParamView, RollbotParams
-from rollbot_oc.rotations import quat_multiply
+from rollbot_oc.model.params import TILT, ParamView, RollbotParams
+from rollbot_oc.model.rotations import quat_multiply
 
 __all__ = ["EMBEDDED_SETTINGS", "STATUS", "Memory", "StepFunction", "control_step", "HISTORY"]
 

@@ -5,7 +5,7 @@ A mission kind is one class in one file (``circle``, ``waypoints``,
 in the problem file (``kind``, ``keys``), builds itself from that table
 (``from_table``) and writes it back (``to_table``), measures a run
 (``metrics``), and answers the controllers' questions (``stops``,
-``stop_rule``, ``orbit``, ``gates``, ``waypoints``).  ``rollbot_oc.problems``
+``stop_rule``, ``orbit``, ``gates``, ``waypoints``).  ``rollbot_oc.scenarios.problem``
 finds a kind by name (``mission_kind``) and never looks at which kind it has.
 """
 
@@ -15,9 +15,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.missions.stops import STOP_TOLERANCE, StopRule
-from rollbot_oc.reproducible import norm
+from rollbot_oc.core.reproducible import norm
+from rollbot_oc.view.text import number as shown  # a value with its unit, as the summaries print it
 
 __all__ = ["Mission", "register", "mission_kind", "KINDS", "centre_of_curvature", "check_point"]
 
@@ -101,11 +102,10 @@ class Mission:
         return {}
 
     def verdict(self, metrics: dict) -> list[str]:
-        """How a run went, in a few words (``summary.run_verdict``), from its ``metrics``."""
-        from rollbot_oc.summary import number
+        """How a run went, in a few words (``view.text.run_verdict``), from its ``metrics``."""
 
-        return [f"completed in {number(metrics.get('completion_time'), '.1f', 's')}" if metrics["completed"] else
-                f"NOT completed in {number(metrics['duration'], '.1f', 's')}"]
+        return [f"completed in {shown(metrics.get('completion_time'), '.1f', 's')}" if metrics["completed"] else
+                f"NOT completed in {shown(metrics['duration'], '.1f', 's')}"]
 
     # -- what the controllers ask ---------------------------------------------------------------
     @classmethod

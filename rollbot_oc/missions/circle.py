@@ -18,9 +18,11 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.missions.base import Mission, check_point, register
 from rollbot_oc.missions.schema import POSITION_LIMIT, number, point
+from rollbot_oc.analysis.quasi_stable import RadiusMap
+from rollbot_oc.view.text import number as shown  # a value with its unit, as the summaries print it
 
 __all__ = ["Circle", "REACH_HOLD"]
 
@@ -30,7 +32,6 @@ REACH_HOLD = 10.0  # s the robot must stay within reach_tolerance of the circle 
 @functools.lru_cache(maxsize=32)
 def _radius_range(params) -> tuple[float, float]:
     """The robot's quasi-stable radii ``[R_min, R_max]`` (slow branch, level floor), m."""
-    from rollbot_oc.quasi_stable import RadiusMap
 
     radius_map = RadiusMap(params.replace(slope=0.0))
     return radius_map.R_min, radius_map.R_max
@@ -105,18 +106,17 @@ class Circle(Mission):
 
     def verdict(self, metrics: dict) -> list[str]:
         """On the circle and when, the deviations; or why not completed."""
-        from rollbot_oc.summary import number
 
         m = metrics
         if m["completed"]:
-            return [f"on the circle after {number(m['reach_time'], '.1f', 's')}",
-                    f"deviation {number(m['avg_deviation'], '.2f', 'cm', 100)} average, "
-                    f"{number(m['max_deviation'], '.2f', 'cm', 100)} largest"]
+            return [f"on the circle after {shown(m['reach_time'], '.1f', 's')}",
+                    f"deviation {shown(m['avg_deviation'], '.2f', 'cm', 100)} average, "
+                    f"{shown(m['max_deviation'], '.2f', 'cm', 100)} largest"]
         if m.get("reach_time") is None:
-            return [f"NOT completed: not on the circle within {number(m['duration'], '.1f', 's')}"]
-        return [f"NOT completed: on the circle after {number(m['reach_time'], '.1f', 's')}, but the run ended at "
-                f"{number(m['duration'], '.1f', 's')}, before the deviations could be measured (from "
-                f"{number(m.get('settle_time'), '.0f', 's')} on)"]
+            return [f"NOT completed: not on the circle within {shown(m['duration'], '.1f', 's')}"]
+        return [f"NOT completed: on the circle after {shown(m['reach_time'], '.1f', 's')}, but the run ended at "
+                f"{shown(m['duration'], '.1f', 's')}, before the deviations could be measured (from "
+                f"{shown(m.get('settle_time'), '.0f', 's')} on)"]
 
     def deviation(self, positions) -> np.ndarray:
         """Distance (m) of each position (2, n) from the target circle."""

@@ -20,12 +20,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.missions.base import Mission, check_point, path_length, register
 from rollbot_oc.missions.schema import number, points
 from rollbot_oc.missions.stops import STOP_TOLERANCE
 from rollbot_oc.missions.waypoints import Waypoint
-from rollbot_oc.reproducible import norm
+from rollbot_oc.core.reproducible import norm
+from rollbot_oc.view.text import number as shown  # a value with its unit, as the summaries print it
 
 __all__ = ["Gates", "gate_passes", "PassMonitor", "PASS_SPEED"]
 
@@ -157,13 +158,12 @@ class Gates(Mission):
 
     def verdict(self, metrics: dict) -> list[str]:
         """Completed and when, or how many gates were passed; the worst miss."""
-        from rollbot_oc.summary import number
 
         misses = metrics["gate_misses"]
-        head = (f"completed in {number(metrics['completion_time'], '.1f', 's')}" if metrics["completed"] else
+        head = (f"completed in {shown(metrics['completion_time'], '.1f', 's')}" if metrics["completed"] else
                 f"NOT completed: {metrics['gates_passed']} of {len(self.points)} gates passed in "
-                f"{number(metrics['duration'], '.1f', 's')}")
-        return [head, f"worst gate miss {number(max(misses), '.1f', 'cm', 100)}" if misses else ""]
+                f"{shown(metrics['duration'], '.1f', 's')}")
+        return [head, f"worst gate miss {shown(max(misses), '.1f', 'cm', 100)}" if misses else ""]
 
     def leg(self, index: int) -> "Gates":
         """The gates from ``index`` on (the last gate if all are passed)."""

@@ -13,9 +13,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from rollbot_oc.errors import ConfigError, NumericalFailure
+from rollbot_oc.core.errors import ConfigError, NumericalFailure
 from rollbot_oc.missions.base import Mission, register
 from rollbot_oc.missions.schema import number
+from rollbot_oc.analysis.experiments import OpenLoopMeasurement, check_open_loop, open_loop_run
+from rollbot_oc.analysis.quasi_stable import quasi_stable_curve
+from rollbot_oc.core.progress import progress_bar
 
 __all__ = ["OpenLoop"]
 
@@ -53,7 +56,7 @@ class OpenLoop(Mission):
         return {"speeds": list(self.speeds), "ramp_rate": float(self.ramp_rate)}
 
     def run(self, problem, show_progress: bool | None = None) -> dict:
-        """Each driving speed measured in simulation against the quasi-stable theory (``problems.run_open_loop``).
+        """Each driving speed measured in simulation against the quasi-stable theory (``problem.run_open_loop``).
 
         Returns
         -------
@@ -64,9 +67,6 @@ class OpenLoop(Mission):
             A speed whose run left the no-slip model has nulls and an ``error``
             (and ``completed`` is False).
         """
-        from rollbot_oc.experiments import OpenLoopMeasurement, check_open_loop, open_loop_run
-        from rollbot_oc.progress import progress_bar
-        from rollbot_oc.quasi_stable import quasi_stable_curve
 
         for speed in self.speeds:
             check_open_loop(speed, problem.params, ramp_rate=self.ramp_rate)

@@ -7,13 +7,15 @@ the key, its value and the valid range.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 
-__all__ = ["POSITION_LIMIT", "number", "points", "point", "table", "check_keys"]
+__all__ = ["NAME_PATTERN", "POSITION_LIMIT", "number", "points", "point", "table", "check_keys"]
 
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{0,63}")  # a scenario or campaign name, also a file stem
 POSITION_LIMIT = 1e4  # m: largest coordinate of a start, centre, stop or gate
 
 

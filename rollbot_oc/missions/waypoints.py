@@ -15,11 +15,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from rollbot_oc.dynamics import OMEGA
+from rollbot_oc.model.dynamics import OMEGA
 from rollbot_oc.missions.base import Mission, check_point, path_length, register
 from rollbot_oc.missions.schema import number, points
 from rollbot_oc.missions.stops import STOP_TOLERANCE, StopRule, reached_stops
-from rollbot_oc.reproducible import norm
+from rollbot_oc.core.reproducible import norm
+from rollbot_oc.view.text import number as shown  # a value with its unit, as the summaries print it
 
 __all__ = ["Waypoint", "Waypoints"]
 
@@ -114,12 +115,11 @@ class Waypoints(Mission):
 
     def verdict(self, metrics: dict) -> list[str]:
         """Completed and when, or how many stops were reached; the worst stop error."""
-        from rollbot_oc.summary import number
 
         errors = metrics["stop_errors"]
-        worst = f"worst stop error {number(max(errors), '.1f', 'cm', 100)}" if errors else ""
-        head = (f"completed in {number(metrics['completion_time'], '.1f', 's')}" if metrics["completed"] else
-                f"NOT completed: {len(errors)} of {len(self.stops)} stops in {number(metrics['duration'], '.1f', 's')}")
+        worst = f"worst stop error {shown(max(errors), '.1f', 'cm', 100)}" if errors else ""
+        head = (f"completed in {shown(metrics['completion_time'], '.1f', 's')}" if metrics["completed"] else
+                f"NOT completed: {len(errors)} of {len(self.stops)} stops in {shown(metrics['duration'], '.1f', 's')}")
         return [head, worst]
 
     def first(self, count: int) -> "Waypoints":

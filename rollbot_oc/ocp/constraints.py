@@ -16,7 +16,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.dynamics import NW, imbalance, reduced_model
+from rollbot_oc.model.dynamics import NW, imbalance, reduced_model
 from rollbot_oc.ocp.problem import OCP, Constraint
 
 __all__ = ["motor_torque", "driving_speed", "motor_accel", "no_jump", "no_slide", "position_box",

@@ -8,7 +8,7 @@ gradient of its cost and its Gauss-Newton Hessian block
 
 with ``z`` the stage's local variables and the global ones, ``r`` its
 least-squares residuals and ``l`` its general cost.  The Function is compiled
-to C where a compiler exists (``rollbot_oc.codegen``), mapped over the stages
+to C where a compiler exists (``rollbot_oc.model.codegen``), mapped over the stages
 alike, and the blocks land in the global sparse matrices through index maps
 computed once from the Functions' sparsity patterns and the stages' places in
 ``w`` and ``g``.  Nothing here knows what the problem is: every entry and
@@ -21,7 +21,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.fastcall import FastFunction
+from rollbot_oc.core.fastcall import FastFunction
+from rollbot_oc.model.codegen import compiled
 
 __all__ = ["StructuredLinearisation"]
 
@@ -41,8 +42,6 @@ class _Group:
                                    ca.triu(ca.mtimes(Jr.T, Jr) + ca.hessian(l, z)[0]), l + 0.5 * ca.sumsqr(r)],
                                   list(names), ["c", "J", "grad", "H", "f"])
         if compile_it:
-            from rollbot_oc.codegen import compiled
-
             derivatives = compiled(derivatives)
         count = len(stages)
         shared = [1, 2, 3]  # v, p and q are the same for every stage; y, sq and hs are per stage

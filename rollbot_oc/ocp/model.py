@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from rollbot_oc.dynamics import NU, NW, NZ, REDUCED, REDUCED_NAMES, StateSlices, reduced_model, rk4
-from rollbot_oc.params import NP, PARAM_VECTOR_FIELDS
+from rollbot_oc.model.dynamics import NU, NW, NZ, REDUCED, REDUCED_NAMES, StateSlices, reduced_model, rk4
+from rollbot_oc.model.params import NP, PARAM_VECTOR_FIELDS
 
 __all__ = ["OCPModel", "rollbot_model"]
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.errors import NotConverged
+from rollbot_oc.core.errors import NotConverged
 
 __all__ = ["OCPSolution"]
 

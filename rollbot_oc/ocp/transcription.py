@@ -36,13 +36,18 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.errors import ConfigError
-from rollbot_oc.fastcall import FastFunction
-from rollbot_oc.ocp.problem import OCP, Constraint, FreeTime
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.core.fastcall import FastFunction
+from rollbot_oc.ocp.terms import Constraint, FreeTime
+from rollbot_oc.model.codegen import compiled as compile_function
+
+if TYPE_CHECKING:  # the problem builds its transcription (OCP.solver): the type only, for the annotations
+    from rollbot_oc.ocp.problem import OCP
 
 __all__ = ["Transcription", "Layout"]
 
@@ -303,7 +308,7 @@ class Transcription:
     def nlp(self, compiled: bool = False):
         """``(f, g, general, residuals)``: the NLP in MX of ``w`` and ``par``, its stages alike evaluated by one
         mapped call of their Function; ``compiled``: that Function and its Jacobian as compiled C
-        (``rollbot_oc.codegen``; then an NLP solver has first derivatives only: a limited-memory Hessian)."""
+        (``rollbot_oc.model.codegen``; then an NLP solver has first derivatives only: a limited-memory Hessian)."""
         ocp, L, w, par = self.ocp, self.layout, self.w, self.par
         n = L.intervals
         p = par[L.parameters["p"]]
@@ -313,8 +318,6 @@ class Transcription:
         c_of, l_of, r_of = {}, {}, {}
         for fun, group in self.groups():
             if compiled:
-                from rollbot_oc.codegen import compiled as compile_function
-
                 # without optimisation: a stage and its Jacobian are 2 MB of C that gcc -O1 takes a minute to
                 # compile and -O0 seconds, and an NLP solver's time goes to its own linear algebra, not to them
                 fun = compile_function(fun, flags=("-O0",), jacobian=True)

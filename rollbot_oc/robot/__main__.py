@@ -10,7 +10,7 @@ import argparse
 import sys
 import time
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.robot.protocol import Decoder
 from rollbot_oc.robot.transport import open_link
 

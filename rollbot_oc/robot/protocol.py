@@ -23,7 +23,7 @@ Payloads::
 
     HEARTBEAT   (1)  5 bytes  time_ms u32 (the sender's clock, ms, wrapping), mode u8
     MEASUREMENT (2)  56 bytes period u32, time f64 (s), state 11 x f32 (the full state of
-                              rollbot_oc.dynamics: x, y [m]; qw, qx, qy, qz; wx, wy, wz [rad/s];
+                              rollbot_oc.model.dynamics: x, y [m]; qw, qx, qy, qz; wx, wy, wz [rad/s];
                               theta [rad]; theta_dot [rad/s]; single precision, 1e-7 of each value,
                               so that 100 measurements a second take 59 % of a 115200-baud UART)
     COMMAND     (3)  13 bytes period u32, motor acceleration f64 (rad/s^2), status u8
@@ -147,7 +147,7 @@ class Measurement:
     time : float
         Time of the measurement, s (f64).
     state : tuple of 11 float
-        The full state of ``rollbot_oc.dynamics`` (position m, quaternion, angular velocity rad/s,
+        The full state of ``rollbot_oc.model.dynamics`` (position m, quaternion, angular velocity rad/s,
         motor angle rad, driving speed rad/s); any sequence of 11 numbers, kept as a tuple of floats
         rounded to single precision (f32, as on the wire; beyond its range, infinite).
     """

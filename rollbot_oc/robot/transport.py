@@ -30,7 +30,7 @@ import time
 from dataclasses import dataclass
 from urllib.parse import parse_qs, urlsplit
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 
 __all__ = ["LinkSpec", "LinkCounters", "Transport", "UdpTransport", "SerialTransport", "parse_link", "open_link",
            "ROLES", "BAUD_RANGE", "DEFAULT_BAUD", "DEFAULT_HOST"]
@@ -287,7 +287,7 @@ class SerialTransport(Transport):
     def __init__(self, spec: LinkSpec):
         super().__init__(spec)
         try:
-            import serial
+            import serial  # optional extra [robot]: only a serial link needs pyserial
         except ImportError:
             raise ConfigError(f"link URL {spec.url!r}: serial links need pyserial "
                               "(pip install 'rollbot_oc[robot]')") from None

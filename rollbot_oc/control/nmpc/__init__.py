@@ -4,7 +4,7 @@ Structure (do-mpc's separation: model, controller, estimator and simulator over 
 of the solver from its supervision):
 
 * **The control step** (``step.TrackingStep``), the work of every control period: the filter on the floor's
-  tilt and the model's masses and damping (``estimation.TiltEstimator``), delay compensation (a measurement
+  tilt and the model's masses and damping (``control.nmpc.estimation.TiltEstimator``), delay compensation (a measurement
   ``L`` periods old predicted forward over the commands issued since), and at each solve instant (every
   ``horizon.h``) one solve of the tracking problem (a real-time iteration by default) (``tracking.tracking_problem``: the
   predicted reduced state kept near the reference over ``horizon.N`` intervals, with the motor's torque,

@@ -10,10 +10,10 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.ocp import rollbot_model
-from rollbot_oc.dynamics import NZ, REDUCED
-from rollbot_oc.fastcall import FastFunction
-from rollbot_oc.params import NP, PARAM_INDEX, TILT, RollbotParams
-from rollbot_oc.reproducible import dot, matmul, norm, solve
+from rollbot_oc.model.dynamics import NZ, REDUCED
+from rollbot_oc.core.fastcall import FastFunction
+from rollbot_oc.model.params import NP, PARAM_INDEX, TILT, RollbotParams
+from rollbot_oc.core.reproducible import dot, matmul, norm, solve
 
 __all__ = ["TiltEstimator", "LEARNABLE", "check_filter"]
 
@@ -76,9 +76,8 @@ class TiltEstimator:
     attitude_gain : float
         Gain, in (0, 1] per control period, of the attitude the predictions start from: each period the model's
         predicted attitude (carried from the measured angular velocity) moves this fraction of the way to the
-        measured one, a time constant of about ``dt / attitude_gain``; 1 uses the measurement alone. The measured
-        attitude's noise enters the prediction, its Jacobian and, in closed loop, the commands, and biased the
-        learned factors (random course 30: the shell's mass 7.5 % high after 20 s).
+        measured one, a time constant of about ``dt / attitude_gain``; 1 uses the measurement alone, whose noise
+        then enters the prediction, its Jacobian and, in closed loop, the commands, and biases the learned factors.
     """
 
     def __init__(self, params: RollbotParams, dt: float, process_noise: float = 0.01, gyro_sigma: float = 2e-3,

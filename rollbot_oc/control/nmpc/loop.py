@@ -18,10 +18,10 @@ from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.step import TrackingStep
 from rollbot_oc.control.nmpc.supervisors import GATE_REPLANS, Context, supervisor_for
 from rollbot_oc.control.nmpc.telemetry import Telemetry
-from rollbot_oc.dynamics import REDUCED
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.quasi_stable import RadiusMap
-from rollbot_oc.simulate import Command, ControllerBase, Observation
+from rollbot_oc.model.dynamics import REDUCED
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.analysis.quasi_stable import RadiusMap
+from rollbot_oc.control.protocol import Command, ControllerBase, Observation
 
 __all__ = ["NMPC", "GATE_REPLANS"]
 

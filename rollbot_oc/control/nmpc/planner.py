@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from rollbot_oc.control.nmpc.settings import Timing
 from rollbot_oc.control.nmpc.telemetry import Telemetry
-from rollbot_oc.control.ocp import Plan, SolveFailed
+from rollbot_oc.planning.min_time import Plan, SolveFailed
 
 __all__ = ["PendingPlan", "Planner"]
 

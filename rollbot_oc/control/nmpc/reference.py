@@ -8,8 +8,8 @@ import math
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.control.ocp import orbit_state
-from rollbot_oc.dynamics import NZ
+from rollbot_oc.planning.min_time import orbit_state
+from rollbot_oc.model.dynamics import NZ
 
 __all__ = ["Reference"]
 

@@ -10,7 +10,7 @@ as a dict of the fields it changes::
     NMPCSettings(horizon={"N": 30, "h": 0.1})
     NMPCSettings().replace(recovery={"max_failures": 3})
 
-Every field is checked when its group is built (``rollbot_oc.checked``): a value out of range is a
+Every field is checked when its group is built (``rollbot_oc.core.checked``): a value out of range is a
 one-line ``ConfigError`` naming the field, its value and the valid range.
 """
 
@@ -20,11 +20,11 @@ import math
 from dataclasses import dataclass, field, fields, replace
 
 
-from rollbot_oc.checked import Checked, choice, flag, functions, names, number, numbers, out_of_range, typed
+from rollbot_oc.core.checked import Checked, choice, flag, functions, names, number, numbers, out_of_range, typed
 from rollbot_oc.control.nmpc.estimation import LEARNABLE
 from rollbot_oc.control.nmpc.weights import TrackingWeights
-from rollbot_oc.control.ocp import OCPSettings
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.planning.min_time import OCPSettings
+from rollbot_oc.core.errors import ConfigError
 
 __all__ = ["TrackingWeights", "Horizon", "Weights", "Limits", "FilterSettings", "Arrival", "Recovery",
            "PlannerSettings", "EntrySettings", "Timing", "NMPCSettings"]
@@ -46,7 +46,7 @@ class Horizon(Checked):
     solver : {"rti", "ipopt"}
         One real-time iteration per period (``"rti"``), or IPOPT to convergence (``"ipopt"``).
     compiled : bool or None
-        RTI: evaluate the linearisation as compiled C (``rollbot_oc.codegen``); None: when a compiler exists.
+        RTI: evaluate the linearisation as compiled C (``rollbot_oc.model.codegen``); None: when a compiler exists.
     """
 
     owner, group = "NMPC", "horizon"
@@ -121,7 +121,7 @@ class FilterSettings(Checked):
     enabled : bool
         Estimate the floor tilt (offset-free); off gives the nominal model.
     learn : tuple of str
-        Parameters (of ``estimation.LEARNABLE``) whose scale factors the filter learns as the robot moves.
+        Parameters (of ``control.nmpc.estimation.LEARNABLE``) whose scale factors the filter learns as the robot moves.
     learn_sigma : float
         Prior standard deviation of each learned factor, in (0, 0.3].
     process_noise : float

@@ -31,10 +31,10 @@ from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.telemetry import Telemetry
 from rollbot_oc.control.nmpc.tracking import RTISolver, TrackingSolver
 from rollbot_oc.control.pid import QuasiStablePID
-from rollbot_oc.dynamics import REDUCED, to_reduced
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.reproducible import dot
-from rollbot_oc.simulate import Command, Observation
+from rollbot_oc.model.dynamics import REDUCED, to_reduced
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.core.reproducible import dot
+from rollbot_oc.control.protocol import Command, Observation
 
 __all__ = ["Window", "TrackingStep", "HISTORY"]
 

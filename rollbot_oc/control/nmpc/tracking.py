@@ -28,13 +28,13 @@ import functools
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.codegen import compiler
+from rollbot_oc.model.codegen import compiler
 from rollbot_oc.control.nmpc.settings import NMPCSettings, TrackingWeights
-from rollbot_oc.dynamics import NZ
+from rollbot_oc.model.dynamics import NZ
 from rollbot_oc.missions.base import Mission
 from rollbot_oc.ocp import OCP
 from rollbot_oc.ocp.constraints import robot_limits
-from rollbot_oc.params import RollbotParams
+from rollbot_oc.model.params import RollbotParams
 
 __all__ = ["tracking_problem", "TrackingSolver", "RTISolver", "RELAXABLE"]
 

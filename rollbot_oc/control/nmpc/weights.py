@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rollbot_oc.checked import Checked, number
-from rollbot_oc.dynamics import REDUCED
+from rollbot_oc.core.checked import Checked, number
+from rollbot_oc.model.dynamics import REDUCED
 
 __all__ = ["TrackingWeights"]
 

@@ -18,7 +18,10 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.ocp.routes.fatrop import FatropRoute
+from rollbot_oc.ocp.routes.ipopt import IpoptRoute
+from rollbot_oc.ocp.routes.sqp import RTIRoute, SQPRoute
 
 __all__ = ["Route", "ROUTES", "make_route"]
 
@@ -36,10 +39,6 @@ class Route(Protocol):
 
 
 def _routes() -> dict:
-    from rollbot_oc.ocp.routes.fatrop import FatropRoute
-    from rollbot_oc.ocp.routes.ipopt import IpoptRoute
-    from rollbot_oc.ocp.routes.sqp import RTIRoute, SQPRoute
-
     return {"ipopt": IpoptRoute, "sqp": SQPRoute, "rti": RTIRoute, "fatrop": FatropRoute}
 
 

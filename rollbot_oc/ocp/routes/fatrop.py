@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import casadi as ca
 
-from rollbot_oc.errors import ConfigError
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.ocp.routes.ipopt import NLPRoute
 
 __all__ = ["FatropRoute", "fatrop_status"]

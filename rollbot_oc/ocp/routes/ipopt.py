@@ -7,7 +7,7 @@ import time
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.errors import ConfigError, interruptible
+from rollbot_oc.core.errors import ConfigError, interruptible
 from rollbot_oc.ocp.solution import OCPSolution
 
 __all__ = ["NLPRoute", "IpoptRoute", "nlp_solution", "call_nlp"]

@@ -29,10 +29,11 @@ import time
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.errors import ConfigError, interruptible
+from rollbot_oc.core.errors import ConfigError, interruptible
 from rollbot_oc.ocp.linearisation import StructuredLinearisation
 from rollbot_oc.ocp.solution import OCPSolution
-from rollbot_oc.reproducible import dot
+from rollbot_oc.core.reproducible import dot
+from rollbot_oc.model.codegen import compiler
 
 __all__ = ["SQPRoute", "RTIRoute"]
 
@@ -117,7 +118,7 @@ class SQPRoute:
     line_search : bool
         Backtracking on the L1 merit function (off: full steps).
     compiled : bool or None
-        Evaluate the linearisation as compiled C (``rollbot_oc.codegen``);
+        Evaluate the linearisation as compiled C (``rollbot_oc.model.codegen``);
         None compiles when a C compiler exists.
     qp_options : dict, optional
         Options of the conic solver.
@@ -138,8 +139,6 @@ class SQPRoute:
         self.transcription = tr = transcription
         self.max_iter, self.tol, self.line_search = max_iter, tol, line_search
         if compiled is None:
-            from rollbot_oc.codegen import compiler
-
             compiled = compiler() is not None
         self.linearisation = StructuredLinearisation(tr, regularisation, compiled)
         self.merit = self.linearisation.cost_and_constraints

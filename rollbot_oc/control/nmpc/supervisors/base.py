@@ -8,8 +8,8 @@ from enum import Enum
 
 import numpy as np
 
-from rollbot_oc.dynamics import REDUCED, rest_attitude
-from rollbot_oc.reproducible import dot, norm
+from rollbot_oc.model.dynamics import REDUCED, rest_attitude
+from rollbot_oc.core.reproducible import dot, norm
 
 from rollbot_oc.control.nmpc.modes import ModeMachine
 from rollbot_oc.control.nmpc.planner import Planner
@@ -18,8 +18,8 @@ from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.step import TrackingStep, Window
 from rollbot_oc.control.nmpc.telemetry import Telemetry
 from rollbot_oc.missions.base import Mission
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.simulate import Observation
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.control.protocol import Observation
 
 __all__ = ["Context", "Supervisor"]
 

@@ -14,15 +14,15 @@ import math
 
 import numpy as np
 
-from rollbot_oc.control.nmpc.gates import plan_gates
+from rollbot_oc.planning.gates import plan_gates
 from rollbot_oc.control.nmpc.modes import GatesMode
 from rollbot_oc.control.nmpc.reference import Reference
 from rollbot_oc.control.nmpc.step import Window
 from rollbot_oc.control.nmpc.supervisors.base import Supervisor
-from rollbot_oc.control.ocp import SolveFailed
-from rollbot_oc.dynamics import NZ, REDUCED, to_reduced
+from rollbot_oc.planning.min_time import SolveFailed
+from rollbot_oc.model.dynamics import NZ, REDUCED, to_reduced
 from rollbot_oc.missions import PassMonitor
-from rollbot_oc.reproducible import norm
+from rollbot_oc.core.reproducible import norm
 
 __all__ = ["GatesSupervisor", "GATE_REPLANS"]
 

@@ -21,10 +21,10 @@ from rollbot_oc.control.nmpc.modes import OrbitMode
 from rollbot_oc.control.nmpc.reference import Reference
 from rollbot_oc.control.nmpc.step import Window
 from rollbot_oc.control.nmpc.supervisors.base import Supervisor
-from rollbot_oc.control.ocp import OCPSettings, OrbitEntry, Plan, orbit_guess, orbit_phase
-from rollbot_oc.dynamics import REDUCED, to_reduced
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.reproducible import norm
+from rollbot_oc.planning.min_time import OCPSettings, OrbitEntry, Plan, orbit_guess, orbit_phase
+from rollbot_oc.model.dynamics import REDUCED, to_reduced
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.core.reproducible import norm
 
 __all__ = ["OrbitSupervisor"]
 

@@ -26,11 +26,11 @@ from rollbot_oc.control.nmpc.modes import StopsMode
 from rollbot_oc.control.nmpc.reference import Reference
 from rollbot_oc.control.nmpc.step import Window
 from rollbot_oc.control.nmpc.supervisors.base import Supervisor, _turned
-from rollbot_oc.control.ocp import OCPSettings, Plan, RestToRest, quasi_stable_guess, quasi_stable_guesses
-from rollbot_oc.dynamics import REDUCED, to_reduced
+from rollbot_oc.planning.min_time import OCPSettings, Plan, RestToRest, quasi_stable_guess, quasi_stable_guesses
+from rollbot_oc.model.dynamics import REDUCED, to_reduced
 from rollbot_oc.missions import StopMonitor
-from rollbot_oc.params import RollbotParams
-from rollbot_oc.reproducible import norm
+from rollbot_oc.model.params import RollbotParams
+from rollbot_oc.core.reproducible import norm
 
 __all__ = ["StopsSupervisor", "LegKind"]
 

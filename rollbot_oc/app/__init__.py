@@ -1,0 +1,1 @@
+"""The application: the command line (``rollbot-oc``) and the demo report."""

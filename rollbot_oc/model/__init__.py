@@ -1,0 +1,1 @@
+"""The model: parameters, equations of motion, rotations and the code generation of CasADi Functions."""

@@ -1,0 +1,1 @@
+"""Simulation: the plant (full dynamics, motor limits, floor), its sensors and the onboard estimation."""

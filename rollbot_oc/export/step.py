@@ -46,19 +46,18 @@ of stops:
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
 from rollbot_oc.control.nmpc.estimation import TiltEstimator
+from rollbot_oc.control.nmpc.period import Memory, finite, placement, reduced_state, select
 from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.tracking import RTISolver, tracking_problem
-from rollbot_oc.model.dynamics import NZ, OMEGA, POS, QUAT, REDUCED, THETA, THETA_DOT, motor_speed_clip, symbolic_model
+from rollbot_oc.model.dynamics import NZ, OMEGA, POS, REDUCED, THETA_DOT, motor_speed_clip, symbolic_model
 from rollbot_oc.missions.stops import StopRule
 from rollbot_oc.model.params import TILT, ParamView, RollbotParams
-from rollbot_oc.model.rotations import quat_multiply
 
 __all__ = ["EMBEDDED_SETTINGS", "STATUS", "Memory", "StepFunction", "control_step", "HISTORY"]
 
@@ -70,26 +69,6 @@ EMBEDDED_SETTINGS = NMPCSettings.embedded()
 HISTORY = 4  # commands remembered: delay compensation over up to HISTORY - 1 periods of latency
 STATUS = {0: "solved", 1: "between solves", 2: "QP failed: previous plan", 3: "brake", 4: "done"}
 QP_FEASIBILITY = 1e-6  # largest violation of the QP's constraints by its step that counts as solved
-
-
-class Memory:
-    """Named parts of the controller's flat memory vector (``mem``).
-
-    Parameters
-    ----------
-    parts : sequence of (str, int)
-        Name and size of each part, in order.
-    """
-
-    def __init__(self, parts):
-        self.slices, start = {}, 0
-        for name, size in parts:
-            self.slices[name] = slice(start, start + size)
-            start += size
-        self.size = start
-
-    def __getitem__(self, name: str) -> slice:
-        return self.slices[name]
 
 
 @dataclass
@@ -130,36 +109,6 @@ class StepFunction:
         return 2 * self.window_size
 
 
-def _placement(values: dict):
-    """``(V, ids)``: every symbolic value flattened (column-major) into one MX vector ``V``, and for each
-    name an array of the same shape holding the index of each entry in ``V`` (to pass through a numeric
-    function that only places entries, e.g. ``Transcription.parameter_vector``)."""
-    pieces, ids, start = [], {}, 0
-    for name, value in values.items():
-        n = value.numel()
-        pieces.append(ca.vec(value))
-        ids[name] = np.arange(start, start + n, dtype=float).reshape(value.shape, order="F")
-        start += n
-    return ca.vertcat(*pieces), ids
-
-
-def _select(vector, index):
-    """``vector[index]`` for a symbolic whole-number ``index``; 0 where it is out of range."""
-    return sum(ca.if_else(index == i, vector[i], 0) for i in range(vector.numel()))
-
-
-def _reduced(x):
-    """Reduced state (10,) of a symbolic full state (11,) (``dynamics.to_reduced``)."""
-    half = 0.5 * x[THETA]
-    q = quat_multiply(x[QUAT], ca.vertcat(ca.cos(half), 0, 0, ca.sin(half)))
-    return ca.vertcat(x[POS], q, x[OMEGA], x[THETA_DOT])
-
-
-def _finite(x):
-    """1 where every entry of ``x`` is finite, else 0 (a NaN or an infinity makes the sum fail the test)."""
-    return ca.sum1(ca.fabs(ca.vec(x))) < math.inf
-
-
 def _estimator_update(estimator: TiltEstimator) -> ca.Function:
     """``TiltEstimator.update`` as an SX Function ``(tilt, P, z_prev, u_prev, z_now) -> (tilt, P)``."""
     one_step = estimator.step.fun
@@ -175,7 +124,7 @@ def _estimator_update(estimator: TiltEstimator) -> ca.Function:
     K = ca.solve(S, ca.mtimes(H, P1)).T
     tilt1 = ca.fmin(ca.fmax(tilt + ca.mtimes(K, residual), -0.5), 0.5)
     P2 = ca.mtimes(ca.SX.eye(2) - ca.mtimes(K, H), P1)
-    ok = ca.logic_and(_finite(residual), _finite(H))  # nothing to learn from a broken prediction
+    ok = ca.logic_and(finite(residual), finite(H))  # nothing to learn from a broken prediction
     return ca.Function("tilt_update", [tilt, P, z_prev, u_prev, z_now],
                        [ca.if_else(ok, tilt1, tilt), ca.if_else(ok, P2, P)])
 
@@ -244,9 +193,9 @@ class _RTI:
             else:
                 values[name] = ca.MX(track.sparsity())
         values.update({k: ca.MX(ca.DM(v)) for k, v in self.mission_values.items()})
-        V, ids = _placement(values)
+        V, ids = placement(values)
         par = V[self.tr.parameter_vector(ids).astype(int).tolist()]
-        guess_values, guess_ids = _placement({"Z": ca.horzcat(z0, Zs[:, 1:]), "U": Ur})
+        guess_values, guess_ids = placement({"Z": ca.horzcat(z0, Zs[:, 1:]), "U": Ur})
         guess = guess_values[self.solver._guess(guess_ids["Z"][:, 0], guess_ids["Z"], guess_ids["U"])
                              .astype(int).tolist()]
         w0 = ca.if_else(warm, w, guess)
@@ -254,7 +203,7 @@ class _RTI:
         step = self.route.to_function(relax=self.solver.relax)
         w1, lam_w1, lam_g1, violation, _relaxed = step(w0, ca.if_else(warm, lam_w, zero_w),
                                                        ca.if_else(warm, lam_g, zero_g), par)
-        ok = ca.logic_and(violation <= QP_FEASIBILITY, _finite(w1))
+        ok = ca.logic_and(violation <= QP_FEASIBILITY, finite(w1))
         index = np.arange(n, dtype=float)
         shift = self.solver.shift(index).astype(int).tolist()
         shifted = w1[shift]
@@ -311,12 +260,12 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     k, t_now = part("k"), part("k") * dt
     hist = part("hist")
     x_meas = meas[1:]
-    z_meas = _reduced(x_meas)
+    z_meas = reduced_state(x_meas)
     seen = ca.floor(meas[0] / dt + 0.5)
     # 1. the estimator, when this measurement follows the previous one
     prev_seen = part("prev_seen")
     tilt, P = part("tilt"), ca.reshape(part("P"), 2, 2)
-    u_prev = _select(hist, k - 1 - prev_seen)  # the command issued at the previous measurement's step
+    u_prev = select(hist, k - 1 - prev_seen)  # the command issued at the previous measurement's step
     tilt1, P1 = update(tilt, P, part("prev_z"), u_prev, z_meas)
     follows = ca.logic_and(seen == prev_seen + 1, 1 if s.filter.enabled else 0)
     tilt, P = ca.if_else(follows, tilt1, tilt), ca.if_else(follows, P1, P)
@@ -327,8 +276,8 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     delay = k - seen
     z = z_meas
     for j in range(HISTORY - 1):
-        z = ca.if_else(j < delay, predict(z, _select(hist, delay - 1 - j), p)[0], z)
-    z = ca.if_else(_finite(z), z, z_meas)  # never act on a broken prediction
+        z = ca.if_else(j < delay, predict(z, select(hist, delay - 1 - j), p)[0], z)
+    z = ca.if_else(finite(z), z, z_meas)  # never act on a broken prediction
     # 3. the stop in progress (``StopMonitor`` on the measurement); left, at a solve instant, once reached
     cur, nxt = ref[:window], ref[window:]
     stop, T, last = cur[window - 4:window - 2], cur[window - 2], cur[window - 1]
@@ -395,12 +344,12 @@ def _control_step(params: RollbotParams, s: NMPCSettings, dt: float, rule: StopR
     ramp = ca.sign(ramp_speed) * ca.fmax(0, ca.fabs(ramp_speed) - s.recovery.brake_accel * (t_now - ramp_t0))
     ramp_accel = ca.fmin(ca.fmax((ramp - z[REDUCED.theta_dot]) / dt, -P_view.max_accel), P_view.max_accel)
     braking_now = t_now < brake_until
-    planned = _select(U, ca.fmin(ca.floor((k - k_solved) / every), N - 1))
+    planned = select(U, ca.fmin(ca.floor((k - k_solved) / every), N - 1))
     accel = ca.if_else(braking_now, ramp_accel, planned)
     accel = motor_speed_clip(accel, x_meas[THETA_DOT], P_view.max_speed, dt)
     bounds = symbolic_model().accel_bounds(x_meas, p, ca.DM.zeros(6))
     accel = ca.fmin(ca.fmax(accel, bounds[0]), bounds[1])
-    accel = ca.if_else(done, 0, ca.if_else(_finite(accel), accel, 0))
+    accel = ca.if_else(done, 0, ca.if_else(finite(accel), accel, 0))
     status = ca.if_else(done, 4, ca.if_else(braking_now, 3, ca.if_else(solved, 0, ca.if_else(failed, 2, 1))))
     # the memory of the next period
     updates = {"k": k + 1, "segment": segment, "segment_k": segment_k, "prev_seen": seen, "prev_z": z_meas,

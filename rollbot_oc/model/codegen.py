@@ -39,7 +39,7 @@ try:
 except ImportError:  # not POSIX: no lock (the writes stay atomic)
     fcntl = None
 
-__all__ = ["compiler", "compiled", "cache_dir", "CompiledCodeWarning"]
+__all__ = ["compiler", "compiled", "compiled_source", "cache_dir", "CompiledCodeWarning"]
 
 COMPILE_TIMEOUT = 300.0  # s
 
@@ -134,30 +134,57 @@ def compiled(fun: ca.Function, flags: tuple[str, ...] = ("-O1",), jacobian: bool
         ``CompiledCodeWarning``) when there is no compiler, it fails, or the
         cache folder cannot be created or written.
     """
-    cc = compiler()
-    if cc is None:
-        return fun
-    name = fun.name()
-    folder = cache_dir()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        key = _key(fun, flags, jacobian)
-        target = folder / f"{name}_{key}.so"
-        loaded = _load(name, target)  # the common case: built before, no lock and no code generated
-        if loaded is not None:
-            return loaded
-        with _locked(folder / f"{name}_{key}.lock"), tempfile.TemporaryDirectory() as tmp:
-            loaded = _load(name, target)  # another process may have built it while we waited
-            if loaded is not None:
-                return loaded
-            source = Path(tmp) / f"{name}.c"
-            gen = ca.CodeGenerator(source.name, {"with_header": False})
+
+    def source() -> str:
+        with tempfile.TemporaryDirectory() as tmp:
+            gen = ca.CodeGenerator(f"{fun.name()}.c", {"with_header": False})
             gen.add(fun)
             if jacobian:
                 gen.add(fun.jacobian())
             gen.generate(tmp + os.sep)
-            problem = _build(cc, source, target, flags)
-            loaded = None if problem else _load(name, target)
+            return (Path(tmp) / f"{fun.name()}.c").read_text()
+
+    key = _key(fun, flags, jacobian)
+    loaded = compiled_source(fun.name(), key, source, [fun.name()], flags)
+    return loaded[fun.name()] if loaded is not None else fun
+
+
+def compiled_source(name: str, key: str, source, functions, flags: tuple[str, ...] = ("-O1",)) -> dict | None:
+    """The Functions ``functions`` of the C ``source`` (a callable giving the text: called only when the library
+    is not cached) compiled into one library ``name_key``, built once and cached; None, with a one-line
+    ``CompiledCodeWarning``, when there is no compiler, it fails, or the cache folder cannot be used.
+
+    Parameters
+    ----------
+    name : str
+        The library's name.
+    key : str
+        What identifies the source (a digest of what it was generated from and the flags).
+    source : callable
+        ``() -> str``, the C source.
+    functions : sequence of str
+        The Functions of the library to load (``casadi.external``).
+    flags : tuple of str
+        Compiler flags.
+    """
+    cc = compiler()
+    if cc is None:
+        return None
+    folder = cache_dir()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        target = folder / f"{name}_{key}.so"
+        loaded = _load_all(functions, target)  # the common case: built before, no lock and no code generated
+        if loaded is not None:
+            return loaded
+        with _locked(folder / f"{name}_{key}.lock"), tempfile.TemporaryDirectory() as tmp:
+            loaded = _load_all(functions, target)  # another process may have built it while we waited
+            if loaded is not None:
+                return loaded
+            path = Path(tmp) / f"{name}.c"
+            path.write_text(source())
+            problem = _build(cc, path, target, flags)
+            loaded = None if problem else _load_all(functions, target)
             if loaded is not None:
                 return loaded
             problem = problem or "the compiled library does not load"
@@ -166,5 +193,14 @@ def compiled(fun: ca.Function, flags: tuple[str, ...] = ("-O1",), jacobian: bool
     except OSError as exc:
         problem = f"cache folder {folder}: {exc.strerror or exc}"
     warnings.warn(f"compiled code for {name} unavailable ({problem}); using the slower uncompiled Function",
-                  CompiledCodeWarning, stacklevel=2)
-    return fun
+                  CompiledCodeWarning, stacklevel=3)
+    return None
+
+
+def _load_all(functions, target: Path) -> dict | None:
+    loaded = {}
+    for function in functions:
+        loaded[function] = _load(function, target)
+        if loaded[function] is None:
+            return None
+    return loaded

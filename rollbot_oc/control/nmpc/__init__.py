@@ -3,15 +3,18 @@
 Structure (do-mpc's separation: model, controller, estimator and simulator over one model; acados' split
 of the solver from its supervision):
 
-* **The control step** (``step.TrackingStep``), the work of every control period: the filter on the floor's
-  tilt and the model's masses and damping (``control.nmpc.estimation.TiltEstimator``), delay compensation (a measurement
-  ``L`` periods old predicted forward over the commands issued since), and at each solve instant (every
-  ``horizon.h``) one solve of the tracking problem (a real-time iteration by default) (``tracking.tracking_problem``: the
-  predicted reduced state kept near the reference over ``horizon.N`` intervals, with the motor's torque,
-  speed and acceleration limits and the contact margins as constraints), warm started from the previous
-  solution shifted by one interval.  A failed or late solve falls back to the previous solution; after
+* **The control step** (``step.TrackingStep``), the work of every control period, written once as three CasADi
+  Functions of one memory vector (``period``): ``measure`` (the filter on the floor's tilt and the model's
+  masses and damping, the symbolic form of ``estimation.TiltEstimator``, and the delay compensation: a
+  measurement ``L`` periods old predicted forward over the commands issued since), ``solve`` (at each solve
+  instant, every ``horizon.h``, one real-time iteration of the tracking problem ``tracking.tracking_problem``:
+  the predicted reduced state kept near the reference over ``horizon.N`` intervals, with the motor's torque,
+  speed and acceleration limits and the contact margins as constraints, warm started from the previous
+  solution shifted by one interval, its QP by ``qrqp``) and ``commit`` (the step's modes ``modes.StepMode``
+  and the command: a failed or late solve falls back to the previous solution; after
   ``recovery.max_failures`` the motor's speed is ramped to zero (stops) or the paper's PID takes over
-  (circles, gates).  Its modes are ``modes.StepMode``.
+  (circles, gates)).  Where a C compiler exists the NMPC runs their generated C (``source``), the same file
+  ``export-c`` writes.
 * **A supervisor per mission kind** (``supervisors``), an explicit machine of modes with one table of
   transitions (``modes.TRANSITIONS``): for stops, legs ridden on a quasi-stable guess, refined and tracked,
   held at the stop, braked and planned again from rest (``StopsMode``); for circles, a ramp, a planned
@@ -29,8 +32,8 @@ angular velocity from a gyroscope and the motor angle and speed from the encoder
 
 Solvers: the tracking problem is written once on the optimal-control layer and solved by its routes:
 ``"rti"`` (one Gauss-Newton SQP step per period, its Hessian and gradients from the AD Jacobians of the
-least-squares residuals, QPs by HPIPM with qrqp behind it) or ``"ipopt"`` (converged every period, exact
-Hessian); ``benchmarks/bench_nmpc.py`` measures both.
+least-squares residuals, QPs by qrqp, generated as C with the step) or ``"ipopt"`` (converged every period,
+exact Hessian, in Python: no C); ``benchmarks/bench_nmpc.py`` measures both.
 """
 
 from rollbot_oc.control.nmpc.estimation import TiltEstimator

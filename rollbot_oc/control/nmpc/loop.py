@@ -2,8 +2,9 @@
 
 Each control period (``NMPC.__call__``): the step's filter and delay compensation (``TrackingStep.measure``),
 the supervisor's monitors (``watch``); at each solve instant the supervisor's transitions (``advance``); then
-the command: zero once the mission is done, the step's fallback while it lasts, else, at a solve instant or
-with nothing to follow, one solve on the supervisor's window, and the followed solution's acceleration.
+the step's command (``TrackingStep.act``): zero once the mission is done, the step's fallback while it lasts,
+else, at a solve instant or with nothing to follow, one solve on the supervisor's window, and the followed
+solution's acceleration.
 """
 
 from __future__ import annotations
@@ -68,7 +69,7 @@ class NMPC(ControllerBase):
 
     @property
     def estimator(self):
-        """The tilt and model filter (``TiltEstimator``)."""
+        """The tilt and model filter's estimate (``step.Estimate``)."""
         return self.step.estimator
 
     @property
@@ -114,23 +115,11 @@ class NMPC(ControllerBase):
             self.prepare(obs.state)
         k, step, supervisor = self.k, self.step, self.supervisor
         self.k += 1
-        t_now = k * self.dt
         z = step.measure(obs, k)
         reached = supervisor.watch(obs, k)
         if k % self.every == 0:  # stops are left at the solve instants, so legs start on the grid
             supervisor.advance(k, obs, reached, z)
-        if supervisor.done:
-            step.finish(k)
-            return step.issue(k, 0.0)
-        if step.in_fallback(t_now):
-            return step.fallback_command(k, obs, z, supervisor.goal)
-        if step.needs_solve(k):
-            window = supervisor.window(z, k)
-            self._keep(k, window)
-            step.solve(window, z, k, supervisor.fallback, supervisor.on_give_up)
-            if step.current is None:  # the fallback took over
-                return step.fallback_command(k, obs, z, supervisor.goal)
-        return step.command(k)
+        return step.act(k, obs, z, supervisor, self._keep)
 
     def _keep(self, k: int, window) -> None:
         """Keep for the run's log (``references``, one dict per solve; not in the metrics) the reference solved

@@ -1,44 +1,57 @@
 """The NMPC's control step: the work of one control period, given what the supervisor wants followed.
 
-Each period: the tilt and model filter's update (``TiltEstimator``), delay compensation (a measurement
-``L`` periods old predicted forward over the commands issued since), and the command.  At a solve instant
-(every ``h``, or when there is no solution to follow) one solve of the tracking problem on the window the
-supervisor gives (``Window``: reference states and accelerations, node weights, the mission's weights), warm
-started from the previous solution shifted by one interval; a failed warm-started solve is solved once more
-from the reference.  The step's mode (``StepMode``) says what commands the motor:
+The step is the three Functions of ``control.nmpc.period`` over one memory vector: ``measure`` (the tilt and
+model filter's update and the delay compensation), ``solve`` (one real-time iteration of the tracking problem on
+the window the supervisor gives: ``Window``) and ``commit`` (the step's mode and the command).  ``TrackingStep``
+holds the memory, calls them each period, and turns the supervisor's requests (``restart``, ``cold``,
+``stop_motor``, ``hold_until``, ``finish``) into edits of the memory, as a robot's host would send them.  The
+step's mode (``StepMode``) says what commands the motor:
 
 * ``SOLVE``: the solution's acceleration for the current interval;
-* ``SHIFTED``: a solve failed or was late (judged by the compute-time model): the previous solution, for up
-  to ``max_failures - 1`` solves;
+* ``SHIFTED``: a solve failed or was late (judged by the compute-time model, or the wall clock with
+  ``timing.realtime``): the previous solution, for up to ``max_failures - 1`` solves;
 * ``RAMP``: the motor's speed ramped to zero at ``brake_accel`` and held there until the fallback's time is
   over: the fallback of a course of stops (``recovery.fallback = "brake"``), or a supervisor stopping the
   motor (gates);
-* ``PID``: the paper's PID on the current goal for ``pid_time``: the fallback of circles, gates and stops with
-  ``recovery.fallback = "pid"``;
+* ``PID``: the paper's PID on the current goal for ``pid_time`` (its speed computed here, on the host): the
+  fallback of circles, gates and stops with ``recovery.fallback = "pid"``;
 * ``OFF``: the mission is done.
+
+With ``horizon.solver = "ipopt"`` the solve stage is IPOPT to convergence (``TrackingSolver``), evaluated in
+Python with the same inputs and outputs; that route has no C.
 """
 
 from __future__ import annotations
 
-import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from rollbot_oc.control.nmpc.estimation import TiltEstimator
+from rollbot_oc.model.codegen import compiler
 from rollbot_oc.control.nmpc.modes import ModeMachine, StepMode
+from rollbot_oc.control.nmpc.period import EVENTS, MODE_CODES, step_functions
 from rollbot_oc.control.nmpc.settings import NMPCSettings
+from rollbot_oc.control.nmpc.source import NAMES, compiled_step
 from rollbot_oc.control.nmpc.telemetry import Telemetry
-from rollbot_oc.control.nmpc.tracking import RTISolver, TrackingSolver
+from rollbot_oc.control.nmpc.tracking import TrackingSolver
 from rollbot_oc.control.pid import QuasiStablePID
-from rollbot_oc.model.dynamics import REDUCED, to_reduced
-from rollbot_oc.model.params import RollbotParams
-from rollbot_oc.core.reproducible import dot
+from rollbot_oc.model.dynamics import REDUCED
+from rollbot_oc.core.fastcall import FastFunction
+from rollbot_oc.model.params import PARAM_INDEX, TILT, RollbotParams
 from rollbot_oc.control.protocol import Command, Observation
 
-__all__ = ["Window", "TrackingStep", "HISTORY"]
+__all__ = ["Window", "TrackingStep", "Estimate"]
 
-HISTORY = 50  # commands remembered for the filter and the delay compensation, control periods
+MODES = list(StepMode)
+REASONS = {  # why the step's mode changed, by what ``commit`` did (``period.EVENTS``)
+    "solved": {StepMode.SHIFTED: "a solve succeeded in time", StepMode.RAMP: "the fallback's time is over",
+               StepMode.PID: "the fallback's time is over"},
+    "shifted": "a solve failed or was late",
+    "brake": "failed or late with nothing to follow (none, or max_failures in a row): brake",
+    "pid": "failed or late with nothing to follow (none, or max_failures in a row): PID",
+    "off": "the mission is done",
+}
 
 
 @dataclass
@@ -61,6 +74,33 @@ class Window:
     Ur: np.ndarray
     diag: np.ndarray | None = None
     mission_weights: np.ndarray | None = None
+
+
+class Estimate:
+    """The filter's estimate, read from the step's memory: the floor's tilt and the learned scale factors."""
+
+    def __init__(self, step: "TrackingStep"):
+        self._step = step
+
+    @property
+    def tilt(self) -> np.ndarray:
+        """The floor's tilt vector (in-plane gravity per g) (2,)."""
+        return self._step.part("x_f")[:2].copy()
+
+    def params(self) -> np.ndarray:
+        """The model parameter vector with the estimated tilt and the learned factors."""
+        f = self._step.functions
+        x_f = self._step.part("x_f")
+        p = self._step.params.vector()
+        p[TILT] = x_f[:2]
+        for i, name in enumerate(f.learn):
+            p[PARAM_INDEX[name]] *= x_f[2 + i]
+        return p
+
+    def learned(self) -> dict:
+        """The learned scale factors by parameter name."""
+        x_f = self._step.part("x_f")
+        return {name: float(x_f[2 + i]) for i, name in enumerate(self._step.functions.learn)}
 
 
 class TrackingStep:
@@ -87,11 +127,17 @@ class TrackingStep:
         self.every = max(1, int(round(s.horizon.h / dt)))
         if abs(self.every * dt - s.horizon.h) > 1e-9:
             raise ValueError(f"NMPC h = {s.horizon.h} s must be a whole number of control periods dt = {dt} s")
-        solver = TrackingSolver if s.horizon.solver == "ipopt" else RTISolver
-        self.solver = solver(params, s, weights, mission=mission)
-        f = s.filter
-        self.estimator = TiltEstimator(params, dt, f.process_noise, f.gyro_sigma, f.model_error,
-                                       f.learn if f.enabled else (), f.learn_sigma, f.attitude_gain)
+        self.functions = f = step_functions(params, s, weights, mission, dt)
+        self.solver = f.solver if s.horizon.solver == "rti" else TrackingSolver(params, s, weights, mission=mission)
+        self.memory = f.memory
+        self.diag = weights.diagonal(s.horizon.N)
+        use_c = s.horizon.compiled if s.horizon.compiled is not None else compiler() is not None
+        library = compiled_step(f) if use_c else None  # the step's C, as export-c writes it
+        funs = (f.measure, f.solve, f.commit) if library is None else (library[name] for name in NAMES)
+        measure, solve, commit = (FastFunction(fun) for fun in funs)
+        self._measure, self._commit = measure, commit
+        self._solve = solve if s.horizon.solver == "rti" else None
+        self.estimator = Estimate(self)
         self.telemetry = telemetry
         self.radius_map = None  # the PID fallback's (set by the NMPC with its plans)
         self._pid = None
@@ -101,171 +147,149 @@ class TrackingStep:
         """Forget the run."""
         self.telemetry = telemetry
         self.modes = ModeMachine(StepMode.SOLVE)
-        self.warm = None  # (x, lam_w, lam_g): the next solve's warm start
-        self.current = None  # (U, tick of the solve): the solution followed
+        self.mem = self.functions.initial_memory.copy()
         self.prediction = None  # (Z (10, N+1), solve instant, s): the states the last solve predicts
-        self.commands: dict[int, float] = {}
-        self.previous = None
-        self.failures = 0
-        self.until = -1.0  # RAMP and PID: when the fallback's time is over, s
-        self._ramp = None  # RAMP's data: (start, s; driving speed, rad/s) of the speed ramp
         self._pid_fresh = True
         self._pid_goal = None
-        self.estimator.reset()
+
+    def part(self, name: str) -> np.ndarray:
+        """A part of the memory (a view)."""
+        return self.mem[self.memory[name]]
+
+    @property
+    def current(self) -> bool:
+        """Whether a solution is followed."""
+        return bool(self.part("current")[0])
 
     # -- what the supervisor asks ------------------------------------------------------------------
     def restart(self) -> None:
         """A new reference: its first solve starts from it (the warm start solved the one replaced), and
         nothing of the previous solution is followed."""
-        self.warm, self.current = None, None
+        self.part("warm")[:] = 0.0
+        self.part("current")[:] = 0.0
 
     def cold(self) -> None:
         """The next solve starts from its reference (a new plan takes over; what is followed stays)."""
-        self.warm = None
+        self.part("warm")[:] = 0.0
 
     def stop_motor(self, k: int, speed: float, until: float) -> None:
         """Ramp the motor's speed from ``speed`` (rad/s) to zero and hold it there until ``until`` (s)."""
-        self._ramp, self.until = (k * self.dt, speed), until
+        self.mem[self.memory["ramp_t0"]], self.mem[self.memory["ramp_speed"]] = k * self.dt, speed
+        self.mem[self.memory["ramped"]], self.mem[self.memory["until"]] = 1.0, until
         self.restart()
-        self.modes.go(StepMode.RAMP, k, "the supervisor stops the motor")
+        self._go(StepMode.RAMP, k, "the supervisor stops the motor")
 
     def hold_until(self, k: int, until: float) -> None:
         """Keep the motor held by the last fallback (its speed ramp, or the PID) until ``until``, s."""
-        self.until = until
+        self.mem[self.memory["until"]] = until
         if self.modes.mode not in (StepMode.RAMP, StepMode.PID):
-            target = StepMode.RAMP if self._ramp is not None else StepMode.PID
-            self.modes.go(target, k, "the supervisor holds the motor until its plan starts")
+            target = StepMode.RAMP if self.part("ramped")[0] else StepMode.PID
+            self._go(target, k, "the supervisor holds the motor until its plan starts")
 
-    def finish(self, k: int) -> None:
-        """The mission is done: the motor's acceleration is zero from now on."""
-        if self.modes.mode is not StepMode.OFF:
-            self.modes.go(StepMode.OFF, k, "the mission is done")
+    def _go(self, mode: StepMode, k: int, reason: str) -> None:
+        self.modes.go(mode, k, reason)
+        self.mem[self.memory["mode"]] = MODE_CODES[mode]
 
     # -- every period ------------------------------------------------------------------------------
     def measure(self, obs: Observation, k: int):
         """The filter's update and the delay compensation: the reduced state (10,) at tick ``k``."""
-        z_meas = to_reduced(obs.state)
-        seen = int(round(obs.t / self.dt))
-        if self.settings.filter.enabled and self.previous is not None and seen == self.previous[0] + 1:
-            self.estimator.update(self.previous[1], self.commands.get(self.previous[0], 0.0), z_meas)
-        else:
-            self.estimator.lose_track()
-        self.previous = (seen, z_meas)
-        if seen >= k:
-            return z_meas
-        p = self.estimator.params()
-        predicted = z_meas
-        for j in range(seen, k):
-            predicted = self.estimator.step(predicted, self.commands.get(j, 0.0), p)[0].copy()
-        return predicted if np.all(np.isfinite(predicted)) else z_meas  # never act on a broken prediction
+        z, mem = self._measure(self.mem, np.concatenate([[obs.t], obs.state]), k)
+        self.mem = mem.copy()
+        return z.copy()
 
-    def in_fallback(self, t_now: float) -> bool:
-        """Whether a fallback (RAMP or PID) commands the motor now."""
-        return t_now < self.until
-
-    def needs_solve(self, k: int) -> bool:
-        """A solve instant, or nothing to follow."""
-        return k % self.every == 0 or self.current is None
-
-    def solve(self, window: Window, z, k: int, fallback: str, on_give_up) -> None:
-        """One solve on ``window`` from the state ``z`` at tick ``k``; on failure the previous solution, and
-        after ``max_failures`` (or with nothing to follow) the ``fallback`` (``"brake"``: RAMP, else PID),
-        ``on_give_up(z, k)`` called first."""
-        s, log = self.settings, self.telemetry
+    def act(self, k: int, obs: Observation, z, supervisor, keep=None) -> Command:
+        """The command of tick ``k`` from the delay-compensated state ``z``: at a solve instant (or with
+        nothing to follow, outside a fallback) one solve on the supervisor's window, then ``commit``;
+        ``keep(k, window)``, if given, is told each window solved on (the run's log)."""
         t_now = k * self.dt
-        Zr = window.Zr
-        # q and -q are the same attitude: give the (continuous) reference the measurement's sign
-        if dot(Zr[REDUCED.quaternion, 0], z[REDUCED.quaternion]) < 0:
-            Zr[REDUCED.quaternion] *= -1.0
-        p = self.estimator.params()
-        x, lam, status, ok, seconds = self.solver.solve(z, Zr, window.Ur, p, self.warm, window.mission_weights,
-                                                        window.diag)
-        compute = seconds if s.timing.realtime else self.solver.modelled_time()
-        if not ok and self.warm is not None:
-            # a warm start gone bad (an iterate that diverged linearises to a QP no solver can solve): once
-            # more from the reference, in the same interval, its compute time added
-            log.cold_retries += 1
-            first = status
-            x, lam, status, ok, again = self.solver.solve(z, Zr, window.Ur, p, None, window.mission_weights,
-                                                          window.diag)
-            seconds += again
-            compute += again if s.timing.realtime else self.solver.modelled_time()
-            status = f"cold after {first}: {status}"
-            if not ok:
-                self.warm = None  # no use starting from it again
+        done = supervisor.done
+        solving = not done and self.modes.mode is not StepMode.OFF and not t_now < self.part("until")[0] \
+            and (k % self.every == 0 or not self.current)
+        n, m = self.memory["w"], self.memory["lam_g"]
+        if solving:
+            window = supervisor.window(z, k)
+            if keep is not None:
+                keep(k, window)
+            w, lam_w, lam_g, ok, late = self._solve_window(window, z, k)
+        else:
+            w, lam_w, lam_g, ok, late = self.mem[n], self.mem[self.memory["lam_w"]], self.mem[m], 0.0, 0.0
+        args = [self.mem, z, k, w, lam_w, lam_g, ok, late, float(solving), float(done),
+                float(supervisor.fallback != "brake")]
+        accel, speed, by_speed, mem, event = (a.copy() for a in self._commit(*args, np.nan))
+        if by_speed[0] and MODES[int(mem[self.memory["mode"]][0])] is StepMode.PID:  # the PID's speed, here
+            pid = self._pid_speed(obs, z, supervisor.goal, EVENTS[int(event[0])] == "pid")
+            accel, speed, by_speed, mem, event = (a.copy() for a in self._commit(*args, pid))
+        self.mem = mem
+        event = EVENTS[int(event[0])]
+        self._record(event, k)
+        if event == "brake":
+            supervisor.on_give_up(z, k)
+        return Command(speed=float(speed[0])) if by_speed[0] else Command(accel=float(accel[0]))
+
+    def _solve_window(self, window: Window, z, k: int):
+        """One solve on ``window`` at tick ``k``: ``(w, lam_w, lam_g, ok, late)``, its telemetry kept."""
+        s, log = self.settings, self.telemetry
+        f = self.functions
+        diag = self.diag if window.diag is None else window.diag
+        mission = np.zeros(f.window.terms) if window.mission_weights is None else window.mission_weights
+        start = time.perf_counter()
+        if s.horizon.solver == "rti":
+            packed = f.window.pack(window.Zr, window.Ur, diag, mission)
+            w, lam_w, lam_g, ok, retried = (a.copy() for a in self._solve(self.mem, z, packed))
+            ok, retried = bool(ok[0]), bool(retried[0])
+            modelled = (1 + retried) * s.timing.rti_step
+        else:
+            w, lam_w, lam_g, ok, retried, modelled = self._solve_ipopt(window, z, diag, mission)
+        seconds = time.perf_counter() - start
+        compute = seconds if s.timing.realtime else modelled
         late = compute > (s.horizon.h if s.timing.max_solve_time is None else s.timing.max_solve_time)
+        log.cold_retries += retried
+        status = "success" if ok else "failed"
         log.solve_times.append(seconds)
-        log.statuses.append(status)
+        log.statuses.append(f"cold after failed: {status}" if retried else status)
         log.tilt.append(self.estimator.tilt.tolist())
         if ok and not late:
-            Z, U = self.solver.split(x)
-            self.current = (U, k)
-            self.prediction = (Z, t_now)
-            self.warm = (self.solver.shift(x), *lam)  # duals unshifted: the structure repeats every interval
-            self.failures = 0
-            if self.modes.mode is StepMode.SHIFTED:
-                self.modes.go(StepMode.SOLVE, k, "a solve succeeded in time")
-            elif self.modes.mode in (StepMode.RAMP, StepMode.PID):
-                self.modes.go(StepMode.SOLVE, k, "the fallback's time is over")
-            return
+            self.prediction = (self.solver.split(w)[0], k * self.dt)
         if ok:
-            log.late += 1
+            log.late += late
         else:
             log.failed += 1
-        self.failures += 1
-        if self.current is not None and self.failures < s.recovery.max_failures:
+        return w, lam_w, lam_g, float(ok), float(late)
+
+    def _solve_ipopt(self, window: Window, z, diag, mission):
+        """The solve stage by IPOPT to convergence (``horizon.solver = "ipopt"``): ``period``'s ``solve`` in
+        Python, with the compute-time model of its iterations."""
+        solver, p = self.solver, self.estimator.params()
+        Zr = np.array(window.Zr, float)
+        if float(np.dot(Zr[REDUCED.quaternion, 0], z[REDUCED.quaternion])) < 0:
+            Zr[REDUCED.quaternion] *= -1.0
+        warm = (self.part("w").copy(), self.part("lam_w").copy(), self.part("lam_g").copy()) \
+            if self.part("warm")[0] else None
+        x, lam, _status, ok, _seconds = solver.solve(z, Zr, window.Ur, p, warm, mission, diag)
+        modelled, retried = solver.modelled_time(), False
+        if not ok and warm is not None:
+            retried = True
+            x, lam, _status, ok, _seconds = solver.solve(z, Zr, window.Ur, p, None, mission, diag)
+            modelled += solver.modelled_time()
+        return x, lam[0], lam[1], ok, retried, modelled
+
+    def _record(self, event: str, k: int) -> None:
+        """The telemetry and the mode timeline of what ``commit`` did at tick ``k``."""
+        log = self.telemetry
+        if event in ("brake", "pid"):
+            self.prediction = None  # no solution acts now: a refinement starts from the guess's own state
+            setattr(log, f"fallback_{event}", getattr(log, f"fallback_{event}") + 1)
+        elif event == "shifted":
             log.fallback_shifted += 1  # keep following the previous solution (its index moves on)
-            self.modes.go(StepMode.SHIFTED, k, "a solve failed or was late")
-            return
-        self.warm, self.current, self.failures = None, None, 0
-        self.prediction = None  # no solution acts now: a refinement starts from the guess's own state
-        if fallback == "brake":
-            log.fallback_brake += 1
-            on_give_up(z, k)
-            speed = float(z[REDUCED.theta_dot])
-            self._ramp = (t_now, speed)
-            self.until = t_now + abs(speed) / s.recovery.brake_accel + s.horizon.h
-            self.modes.go(StepMode.RAMP, k,
-                          "failed or late with nothing to follow (none, or max_failures in a row): brake")
-            return
-        log.fallback_pid += 1
-        self._ramp = None
-        self.until = t_now + s.recovery.pid_time
-        self._pid_fresh = True
-        self.modes.go(StepMode.PID, k, "failed or late with nothing to follow (none, or max_failures in a row): PID")
+        mode = MODES[int(self.part("mode")[0])]
+        if mode is not self.modes.mode:
+            reason = REASONS[event][self.modes.mode] if event == "solved" else REASONS[event]
+            self.modes.go(mode, k, reason)
 
-    def command(self, k: int) -> Command:
-        """The followed solution's acceleration for the current interval (``SOLVE`` and ``SHIFTED``)."""
-        U, k_solved = self.current
-        return self.issue(k, float(U[min((k - k_solved) // self.every, len(U) - 1)]))
-
-    def issue(self, k: int, accel: float) -> Command:
-        """Command ``accel`` (rad/s^2) at tick ``k`` and remember it."""
-        self._remember(k, accel)
-        return Command(accel=accel)
-
-    def fallback_command(self, k: int, obs: Observation, z, goal: int) -> Command:
-        """RAMP: the motor's speed on its ramp to zero; PID: the paper's PID towards the mission's target
-        ``goal`` (``Mission.leg``); both as a speed command, remembered as the acceleration the predicted
-        driving speed needs."""
-        if self.modes.mode is StepMode.PID:
-            speed = self._pid_speed(obs, z, goal)
-        else:
-            t0, speed0 = self._ramp
-            speed = math.copysign(max(0.0, abs(speed0) - self.settings.recovery.brake_accel * (k * self.dt - t0)),
-                                  speed0)
-        limit = self.params.max_accel  # the plant's motor cannot follow faster either
-        self._remember(k, float(np.clip((speed - float(z[REDUCED.theta_dot])) / self.dt, -limit, limit)))
-        return Command(speed=speed)
-
-    def _remember(self, k: int, accel: float) -> None:
-        """The acceleration commanded at tick ``k``, rad/s^2, for the filter and the delay compensation (the last
-        ``HISTORY`` periods kept)."""
-        self.commands[k] = accel
-        self.commands.pop(k - HISTORY, None)
-
-    def _pid_speed(self, obs: Observation, z, goal: int) -> float:
-        """The paper's PID on the mission's target ``goal``, taking over smoothly from the current driving speed."""
+    def _pid_speed(self, obs: Observation, z, goal: int, fresh: bool) -> float:
+        """The paper's PID on the mission's target ``goal``, taking over smoothly from the current driving speed
+        (``fresh``: the fallback starts now)."""
+        self._pid_fresh |= fresh
         if self._pid is None or self._pid_goal != goal:
             self._pid, self._pid_goal, self._pid_fresh = QuasiStablePID(
                 self.mission.leg(goal), self.params, dt=self.dt, radius_map=self.radius_map), goal, True

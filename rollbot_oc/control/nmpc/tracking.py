@@ -15,8 +15,7 @@ residual, so the real-time iteration's Gauss-Newton Hessian ``J^T J`` and its
 gradients come from CasADi's AD of the same description that IPOPT solves.
 
 ``RTISolver`` takes one real-time iteration per call (route ``"rti"``, QPs by
-HPIPM, or qrqp where HPIPM fails; the stage derivatives compiled to C where a
-compiler exists);
+qrqp; the control step evaluates its ``to_function`` form, ``control.nmpc.period``);
 ``TrackingSolver`` solves to convergence (route ``"ipopt"``, exact Hessian).
 Both return ``(x, multipliers, status, success, seconds)`` to the loop.
 """
@@ -76,9 +75,8 @@ def _route(route: str, N: int, h: float, substeps: int, margins: tuple, constrai
     mission kind (``kind``, a ``Mission`` class: its terms are written once per kind)."""
     ocp = tracking_problem(N, h, substeps, *margins, constraints=constraints, mission=kind)
     if route == "rti":
-        # HPIPM (interior point: no active set to warm-start, residuals to 1e-6), and qrqp where it fails
-        hpipm = {"iter_max": 50, "mode": "balance", **{f"res_{r}_max": 1e-6 for r in "gbdm"}}
-        return ocp.solver("rti", qp_solver=("hpipm", "qrqp"), compiled=compiled, qp_options={"hpipm": hpipm})
+        # qrqp: the QP solver CasADi generates as C with the step (``control.nmpc.period``)
+        return ocp.solver("rti", qp_solver="qrqp", compiled=compiled)
     return ocp.solver("ipopt", hessian="exact", max_iter=50, tol=1e-6,
                       options={"warm_start_init_point": "yes", "warm_start_bound_push": 1e-6,
                                "warm_start_mult_bound_push": 1e-6, "mu_init": 1e-4})

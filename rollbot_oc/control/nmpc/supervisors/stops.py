@@ -216,17 +216,18 @@ class StopsSupervisor(Supervisor):
             else:
                 tail.z[REDUCED.position] += (z_start[REDUCED.position] - tail.z[REDUCED.position, 0])[:, None]
             start = self.segment_start + handover
-            candidates = [self._launch(self.segment, t_now, start, z_start, tail)]
-            planner.pop(self.segment)  # a candidate: queued below if it is the best
-            if s.planner.fresh:  # the same leg also from fresh guesses (one set of guesses charged)
+            candidates = []
+            if s.planner.fresh:  # the leg from fresh guesses first (one set of guesses charged)
                 wall = time.perf_counter()
                 fresh = quasi_stable_guesses(z_start, stop, self.c.params.replace(slope=0.0), s.planner.legs.N,
                                              s.planner.fresh)
                 cost = (time.perf_counter() - wall, s.timing.plan_guess)
                 for start_guess in fresh:
                     candidates.append(self._launch(self.segment, t_now, start, z_start, start_guess, cost))
-                    planner.pop(self.segment)
+                    planner.pop(self.segment)  # a candidate: queued below if it is the best
                     cost = (0.0, 0.0)
+            candidates.append(self._launch(self.segment, t_now, start, z_start, tail))
+            planner.pop(self.segment)
             for candidate in candidates:
                 if candidate.plan is None:
                     continue

@@ -162,7 +162,7 @@ def test_export_c_refuses_what_it_cannot_export(tmp_path, capsys):
 
 def test_generated_code_edits_refuse_an_unexpected_source():
     """The edits of the generated step find exactly the code they expect, or stop the export (another CasADi)."""
-    from rollbot_oc.export.project import _keep_unchanged_factors, _qp_failure_not_an_error
+    from rollbot_oc.control.nmpc.source import _keep_unchanged_factors, _qp_failure_not_an_error
 
     for edit in (_keep_unchanged_factors, _qp_failure_not_an_error):
         with pytest.raises(RuntimeError, match="CasADi version"):

@@ -51,6 +51,7 @@ def test_the_filter_is_the_tilt_estimators_update(period):
                               fl.learn_sigma, fl.attitude_gain)
     measure, mem = FastFunction(f.measure), f.initial_memory.copy()
     states, commands = _trajectory(300)
+    previous = None
     for k, (x, u) in enumerate(zip(states, commands)):
         z = to_reduced(x)
         if k:

@@ -253,7 +253,7 @@ def _nmpc_options(args) -> dict:
 
 
 def _cmd_run(args) -> int:
-    from rollbot_oc.scenarios.problem import run_open_loop, run_problem
+    from rollbot_oc.scenarios.problem import make_controller, run_open_loop, run_problem
     from rollbot_oc.view.text import open_loop_text, run_text
 
     problem = _load_scenario(args)
@@ -272,8 +272,9 @@ def _cmd_run(args) -> int:
             from rollbot_oc.export.project import embedded_controller
 
             controller = embedded_controller(problem)[0]
-        elif controller == "c":
-            controller = _c_controller(args, problem)
+        elif controller == "c":  # the NMPC, its control step the exported C library
+            controller = make_controller("nmpc", problem, **_nmpc_options(args),
+                                         step_library=_c_project(args, problem))
         run = run_problem(problem, controller, seed=args.seed, show_progress=_show_progress(args),
                           **(_nmpc_options(args) if args.controller == "nmpc" else {}))
         metrics = run.metrics
@@ -284,52 +285,68 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_export_c(args) -> int:
-    from rollbot_oc.export.project import export_c
+    from rollbot_oc.control.nmpc.source import LIBRARY
+    from rollbot_oc.core.outputs import atomic_write_text
+    from rollbot_oc.export.project import build, export_c
+    from rollbot_oc.export.step_library import write_step
     from rollbot_oc.scenarios.bundled import load_scenario
 
     out = output_folder(args.out)
     problem = load_scenario(args.problem, base=load_params(args.params))
-    result = export_c(out.path, problem, seed=args.seed, show_progress=_show_progress(args))  # the problem's robot
-    m = result.metrics
-    data = {"folder": str(result.folder), "problem": problem.name, "periods": int(result.log.shape[0]),
-            "sizes": result.sizes, "completed": m["completed"], "completion_time": m["completion_time"],
-            "stop_errors": m["stop_errors"]}
+    if not problem.mission.closed_loop:
+        raise ConfigError(f"export-c: {problem.name} is an open-loop problem; the controller is exported for "
+                          "closed-loop problems")
+    mission = problem.mission
+    embedded = bool(mission.stops) and mission.orbit is None and not mission.gates
+    if embedded:  # the embedded controller's replay project (a course of stops planned at export time)
+        result = export_c(out.path, problem, seed=args.seed, show_progress=_show_progress(args))
+    else:
+        atomic_write_text(out.path / "Makefile", "CC ?= cc\n\n.PHONY: all\nall: librollbot_step.so\n\n"
+                                                 "-include step.mk\n")
+    step = write_step(out.path, problem)  # the NMPC's step, the same C as --controller nmpc runs
+    done = build(out.path, LIBRARY)
+    if done.returncode != 0:
+        lines = (done.stderr or done.stdout).strip().splitlines()
+        raise ConfigError(f"export-c {out.path}: make {LIBRARY} failed" + (f": {lines[-1]}" if lines else ""))
+    data = {"folder": str(out.path), "problem": problem.name, "step": {k: step[k] for k in ("key", "memory", "N")}}
+    if embedded:
+        m = result.metrics
+        data.update({"periods": int(result.log.shape[0]), "sizes": result.sizes, "completed": m["completed"],
+                     "completion_time": m["completion_time"], "stop_errors": m["stop_errors"]})
 
     def text() -> str:
-        worst = f", worst stop error {100 * max(m['stop_errors']):.1f} cm" if m["stop_errors"] else ""
-        run = f"completed in {m['completion_time']:.1f} s" if m["completed"] else "did not complete"
-        return "\n".join([f"{problem.name}: exported the controller to {result.folder} (its recorded run {run}{worst})",
-                          f"  periods recorded: {data['periods']}",
-                          f"  memory: {result.sizes['memory_bytes']} bytes, work arrays: {result.sizes['work_bytes']} "
-                          "bytes",
-                          f"  build and check: make -C {result.folder} check"])
+        lines = [f"{problem.name}: exported the NMPC's control step to {out.path} ({LIBRARY}: "
+                 f"rollbot-oc run {problem.name} --controller c --c-project {out.path})"]
+        if embedded:
+            worst = f", worst stop error {100 * max(m['stop_errors']):.1f} cm" if m["stop_errors"] else ""
+            run = f"completed in {m['completion_time']:.1f} s" if m["completed"] else "did not complete"
+            lines += [f"  and the embedded controller (its recorded run {run}{worst})",
+                      f"  periods recorded: {data['periods']}",
+                      f"  memory: {result.sizes['memory_bytes']} bytes, work arrays: {result.sizes['work_bytes']} "
+                      "bytes", f"  build and check: make -C {out.path} check"]
+        return "\n".join(lines)
 
     _emit(args, data, text)
-    return EXIT_OK if m["completed"] else _failed(f"{problem.name}: the recorded run did not complete")
+    return EXIT_OK if not embedded or m["completed"] else _failed(f"{problem.name}: the recorded run did not complete")
 
 
-def _c_controller(args, problem):
-    """The exported C controller of ``--c-project`` for ``run --controller c`` (built there if need be)."""
-    from rollbot_oc.export.library import LIBRARY, CController
-    from rollbot_oc.export.project import build, read_export
+def _c_project(args, problem):
+    """The folder of ``--c-project`` for ``run --controller c``: the NMPC's step library built there (export-c
+    builds it; ``make`` again if it is missing)."""
+    from rollbot_oc.control.nmpc.source import LIBRARY
+    from rollbot_oc.export.project import build
 
     if not args.c_project:
         raise ConfigError("--controller c needs --c-project DIR (a folder written by rollbot-oc export-c)")
     folder = user_path(args.c_project, "--c-project")
-    try:
-        exported = read_export(folder)
-    except (OSError, ValueError):
-        raise ConfigError(f"--c-project {folder}: not a folder written by rollbot-oc export-c "
-                          "(no readable export.json)") from None
-    if exported.get("problem") != problem.name:
-        raise ConfigError(f"--c-project {folder}: exported for the problem {exported.get('problem')!r}, not "
-                          f"{problem.name!r} (the course is compiled in)")
+    if not folder.is_dir():
+        raise ConfigError(f"--c-project {folder}: not a folder written by rollbot-oc export-c")
     if not (folder / LIBRARY).is_file():
         done = build(folder, LIBRARY)
         if done.returncode != 0:
             lines = (done.stderr or done.stdout).strip().splitlines()
             raise ConfigError(f"--c-project {folder}: make failed" + (f": {lines[-1]}" if lines else ""))
-    return CController(folder)
+    return folder
 
 
 def _cmd_compare(args) -> int:
@@ -490,22 +507,23 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("run", help="run a scenario (file or bundled name) under a controller and print its metrics")
     _add_scenario(p)
     p.add_argument("--controller", choices=("pid", "nmpc", "embedded", "c"), default="pid",
-                   help="pid: the paper's quasi-stable baseline; nmpc: nonlinear MPC; embedded: the exported "
-                   "controller (legs planned before the run, one RTI per interval) in Python; c: the same through "
-                   "the C library of --c-project (default pid)")
+                   help="pid: the paper's quasi-stable baseline; nmpc: nonlinear MPC; c: the NMPC with its control "
+                   "step the C library of --c-project; embedded: the replay project's controller of a course of "
+                   "stops (legs planned before the run) in Python (default pid)")
     p.add_argument("--c-project", metavar="DIR", help="--controller c: a folder written by rollbot-oc export-c for "
-                   "this problem (built with make if its library is missing)")
+                   "this problem (its step library built with make if missing)")
     p.add_argument("--out", metavar="DIR", help="write the trajectory (.npz), metrics (.json), the run's log (.mcap, "
                    "for Foxglove) and plots (PNG) here")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON (SI units)")
     p.set_defaults(run=_cmd_run)
 
-    p = command("export-c", help="the controller on the robot: export the estimator and the NMPC step of a course "
-                "of stops as a standalone C99 project (make, make check)")
+    p = command("export-c", help="the controller on the robot: export the NMPC's control step (filter, delay "
+                "compensation, RTI, fallbacks) as C99 and build its library (run --controller c); for a course of "
+                "stops also the standalone replay project (make, make check)")
     p.add_argument("--out", metavar="DIR", required=True, help="the C project's folder (created)")
-    p.add_argument("--problem", metavar="FILE", default="n_shape", help="scenario file or bundled name of a course "
-                   "of stops (default n_shape): its legs are planned now and compiled in, its run recorded for "
-                   "make check")
+    p.add_argument("--problem", metavar="FILE", default="n_shape", help="scenario file or bundled name of a "
+                   "closed-loop problem (default n_shape); for a course of stops its legs are also planned now and "
+                   "compiled into the replay project, its run recorded for make check")
     _add_params(p)
     p.add_argument("--seed", type=_seed, default=0, metavar="N", help=f"seed of the recorded run's sensor noise, in "
                    f"[0, {MAX_SEED}] (default 0)")

@@ -38,10 +38,13 @@ class NMPC(ControllerBase):
     dt : float
         Control period of the loop, s (the plant's 100 Hz).
     settings : NMPCSettings, optional
+    step_library : str or Path, optional
+        A folder written by ``rollbot-oc export-c`` and built: the control step runs its C library (the same
+        source as the NMPC's own compiled step; the run's JSON gives its ``library_sha256``).
     """
 
     def __init__(self, mission, params: RollbotParams | None = None, dt: float = 0.01,
-                 settings: NMPCSettings | None = None):
+                 settings: NMPCSettings | None = None, step_library=None):
         if mission.orbit is None and not mission.stops and not mission.gates:
             raise ValueError(f"mission {mission.kind!r}: the NMPC needs stops, an orbit or gates")
         if not mission.gates and any(not w.stop for w in mission.waypoints):
@@ -53,7 +56,7 @@ class NMPC(ControllerBase):
         kind = supervisor_for(mission)
         self.weights = kind.tracking_weights(s)
         self.telemetry = Telemetry()
-        self.step = TrackingStep(self.params, s, self.weights, mission, dt, self.telemetry)
+        self.step = TrackingStep(self.params, s, self.weights, mission, dt, self.telemetry, step_library)
         self.every = self.step.every
         self.planner = Planner(s.horizon.h, s.timing, self.telemetry)
         self.supervisor = kind(Context(mission, self.params, s, dt, self.step, self.planner, self.telemetry))
@@ -155,4 +158,5 @@ class NMPC(ControllerBase):
             "model_learned": self.estimator.learned(),
             "modes": self.supervisor.modes.report(self.dt),
             "step_modes": self.step.modes.report(self.dt),
+            **({"library_sha256": self.step.library_sha256} if self.step.library_sha256 else {}),
         }

@@ -11,6 +11,7 @@ controller run the same code, built with the same flags (``FLAGS``).
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import tempfile
 from dataclasses import dataclass
@@ -18,12 +19,16 @@ from pathlib import Path
 
 import casadi as ca
 
+from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.model.codegen import compiled_source
 
-__all__ = ["StepSource", "step_source", "compiled_step", "FLAGS", "NAMES"]
+__all__ = ["StepSource", "step_source", "compiled_step", "load_library", "step_key", "patched", "FLAGS", "NAMES", "LIBRARY",
+           "MANIFEST"]
 
 FLAGS = ("-O1", "-ffp-contract=off")  # no fused multiply-adds, on any target: the last bits agree
 NAMES = ("rollbot_measure", "rollbot_solve", "rollbot_commit")
+LIBRARY = "librollbot_step.so"  # the step's library in a folder written by export-c (``make`` builds it)
+MANIFEST = "step.json"  # beside it: the key of the step it was generated from
 
 
 @dataclass(frozen=True)
@@ -43,6 +48,11 @@ class StepSource:
     key: str
 
 
+def step_key(functions) -> str:
+    """What identifies the step's C: a digest of its Functions (``StepFunctions``) and of ``FLAGS``."""
+    return _key([functions.measure, functions.solve, functions.commit])
+
+
 def _key(functions) -> str:
     text = " ".join(f.serialize() for f in functions) + " ".join(FLAGS) + ca.__version__
     return hashlib.sha1(text.encode()).hexdigest()[:16]
@@ -56,12 +66,9 @@ def step_source(functions) -> StepSource:
         for fun in funs:
             gen.add(fun)
         gen.generate(tmp + os.sep)
-        source = (Path(tmp) / "rollbot_step.c").read_text()
+        source = patched((Path(tmp) / "rollbot_step.c").read_text())
         header = (Path(tmp) / "rollbot_step.h").read_text()
-    source = _keep_unchanged_factors(_qp_failure_not_an_error(source))
-    if "malloc" in source or "calloc" in source:
-        raise RuntimeError("the generated step allocates memory on the heap")
-    return StepSource(source, header, _key(funs))
+    return StepSource(source, header, step_key(functions))
 
 
 def compiled_step(functions) -> dict | None:
@@ -69,6 +76,21 @@ def compiled_step(functions) -> dict | None:
     cannot be compiled (a one-line warning)."""
     funs = [functions.measure, functions.solve, functions.commit]
     return compiled_source("rollbot_step", _key(funs), lambda: step_source(functions).source, NAMES, FLAGS)
+
+
+def patched(source: str) -> str:
+    """Generated C with a QP step and ``qrqp`` in it, edited for the step (module doc): a failed QP returns
+    normally (``_qp_failure_not_an_error``) and unchanged KKT factors are kept (``_keep_unchanged_factors``).
+
+    Raises
+    ------
+    RuntimeError
+        If the generated code is not the one expected, or allocates memory on the heap.
+    """
+    source = _keep_unchanged_factors(_qp_failure_not_an_error(source))
+    if "malloc" in source or "calloc" in source:
+        raise RuntimeError("the generated step allocates memory on the heap")
+    return source
 
 
 _QP_STATUS_RETURN = """  if (d.status == QP_SUCCESS) {;
@@ -122,3 +144,31 @@ def _keep_unchanged_factors(source: str) -> str:
     if source.count(_QRQP_FACTORISE) < 1:
         raise RuntimeError("the generated qrqp factorisation is not the one expected (CasADi version?)")
     return source.replace(_QRQP_FACTORISE, _QRQP_KEEP_FACTORS)
+
+
+def load_library(folder, functions) -> tuple[dict, str]:
+    """``({name: Function}, sha256)`` of the step library of a folder written by ``export-c`` and built
+    (``LIBRARY``), checked against the step the controller would build (``MANIFEST``'s key).
+
+    Raises
+    ------
+    ConfigError
+        If the folder holds no manifest or library, was exported for another step (another robot, problem
+        kind or settings), or the library does not load.
+    """
+    folder = Path(folder)
+    try:
+        key = json.loads((folder / MANIFEST).read_text())["key"]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise ConfigError(f"{folder}: not a folder written by rollbot-oc export-c (no readable {MANIFEST})") from None
+    expected = step_key(functions)
+    if key != expected:
+        raise ConfigError(f"{folder}: exported for another step (key {key}, this controller's is {expected}: "
+                          "another robot, problem kind or settings)")
+    path = folder / LIBRARY
+    try:
+        loaded = {name: ca.external(name, str(path.resolve())) for name in NAMES}
+    except RuntimeError as exc:
+        raise ConfigError(f"{path}: the step's library does not load ({str(exc).splitlines()[-1][:80]}); "
+                          f"build it with make -C {folder} {LIBRARY}") from None
+    return loaded, hashlib.sha256(path.read_bytes()).hexdigest()

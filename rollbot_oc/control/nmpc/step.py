@@ -32,7 +32,7 @@ from rollbot_oc.model.codegen import compiler
 from rollbot_oc.control.nmpc.modes import ModeMachine, StepMode
 from rollbot_oc.control.nmpc.period import EVENTS, MODE_CODES, step_functions
 from rollbot_oc.control.nmpc.settings import NMPCSettings
-from rollbot_oc.control.nmpc.source import NAMES, compiled_step
+from rollbot_oc.control.nmpc.source import NAMES, compiled_step, load_library
 from rollbot_oc.control.nmpc.telemetry import Telemetry
 from rollbot_oc.control.nmpc.tracking import TrackingSolver
 from rollbot_oc.control.pid import QuasiStablePID
@@ -118,10 +118,13 @@ class TrackingStep:
     dt : float
         Control period, s.
     telemetry : Telemetry
+    library : str or Path, optional
+        A folder written by ``export-c`` and built: the step runs its library (``source.LIBRARY``; the
+        Python NMPC's own compiled C otherwise) and ``library_sha256`` says which.
     """
 
     def __init__(self, params: RollbotParams, settings: NMPCSettings, weights, mission, dt: float,
-                 telemetry: Telemetry):
+                 telemetry: Telemetry, library=None):
         s = self.settings = settings
         self.params, self.dt, self.mission = params, dt, mission
         self.every = max(1, int(round(s.horizon.h / dt)))
@@ -132,7 +135,11 @@ class TrackingStep:
         self.memory = f.memory
         self.diag = weights.diagonal(s.horizon.N)
         use_c = s.horizon.compiled if s.horizon.compiled is not None else compiler() is not None
-        library = compiled_step(f) if use_c else None  # the step's C, as export-c writes it
+        self.library_sha256 = None
+        if library is not None:
+            library, self.library_sha256 = load_library(library, f)
+        else:
+            library = compiled_step(f) if use_c else None  # the step's C, as export-c writes it
         funs = (f.measure, f.solve, f.commit) if library is None else (library[name] for name in NAMES)
         measure, solve, commit = (FastFunction(fun) for fun in funs)
         self._measure, self._commit = measure, commit

@@ -37,6 +37,7 @@ from contextlib import contextmanager
 
 from rollbot_oc import __version__
 from rollbot_oc.errors import ConfigError, NumericalFailure, interruptible
+from rollbot_oc.export.firmware import TARGETS as FIRMWARE_TARGETS
 from rollbot_oc.outputs import output_folder, to_json, user_path, write_json
 from rollbot_oc.params import load_params
 
@@ -284,9 +285,11 @@ def _cmd_export_c(args) -> int:
 
     out = output_folder(args.out)
     problem = load_scenario(args.problem, base=load_params(args.params))
-    result = export_c(out.path, problem, seed=args.seed, show_progress=_show_progress(args))  # the problem's robot
+    result = export_c(out.path, problem, seed=args.seed, show_progress=_show_progress(args),
+                      target=args.target)  # the problem's robot
     m = result.metrics
-    data = {"folder": str(result.folder), "problem": problem.name, "periods": int(result.log.shape[0]),
+    data = {"folder": str(result.folder), "problem": problem.name, "target": args.target,
+            "periods": int(result.log.shape[0]),
             "sizes": result.sizes, "completed": m["completed"], "completion_time": m["completion_time"],
             "stop_errors": m["stop_errors"]}
 
@@ -297,7 +300,9 @@ def _cmd_export_c(args) -> int:
                           f"  periods recorded: {data['periods']}",
                           f"  memory: {result.sizes['memory_bytes']} bytes, work arrays: {result.sizes['work_bytes']} "
                           "bytes",
-                          f"  build and check: make -C {result.folder} check"])
+                          f"  build and check: make -C {result.folder} check"]
+                         + ([f"  firmware (Cortex-M7 on QEMU): make -C {result.folder} qemu-check"]
+                            if args.target == "cortex-m7" else []))
 
     _emit(args, data, text)
     return EXIT_OK if m["completed"] else _failed(f"{problem.name}: the recorded run did not complete")
@@ -498,6 +503,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_params(p)
     p.add_argument("--seed", type=_seed, default=0, metavar="N", help=f"seed of the recorded run's sensor noise, in "
                    f"[0, {MAX_SEED}] (default 0)")
+    p.add_argument("--target", choices=FIRMWARE_TARGETS, default="host", help="host: the C99 project (default); "
+                   "cortex-m7: also the firmware for QEMU's mps2-an500 board and make qemu-check (arm-none-eabi-gcc, "
+                   "qemu-system-arm; docs/firmware.md)")
     p.add_argument("--json", action="store_true", help="print what was exported as JSON (sizes in bytes)")
     p.set_defaults(run=_cmd_export_c)
 

@@ -17,7 +17,9 @@ replay log, and writes into the folder ``out``:
 * ``README.md``: how to build, check and call it;
 * ``Makefile``: ``make`` builds ``replay`` and ``librollbot_controller.so``, ``make check`` replays the
   log and fails if a command differs by more than 1e-9 rad/s^2 or a status differs;
-* ``export.json``: what was exported (sizes in bytes, the legs, the recorded run's metrics).
+* ``export.json``: what was exported (sizes in bytes, the legs, the recorded run's metrics, the target);
+* with ``target="cortex-m7"``, the firmware build too (``export.firmware``: ``make qemu-check`` replays the
+  recorded run on QEMU's Cortex-M7 board).
 
 Every file is written whole (``outputs.atomic_write_text``).  ``build(out)`` runs ``make`` there.
 """
@@ -38,6 +40,7 @@ import numpy as np
 from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.export.embedded import EmbeddedController
+from rollbot_oc.export.firmware import TARGETS, write_firmware
 from rollbot_oc.export.reference import EmbeddedReference, plan_reference
 from rollbot_oc.export.step import EMBEDDED_SETTINGS, StepFunction, control_step
 from rollbot_oc.outputs import OutputFolder, atomic_write_text, to_json
@@ -215,7 +218,7 @@ def _log_text(log: np.ndarray) -> str:
 
 
 def export_c(out, problem, params=None, settings: NMPCSettings | None = None, seed: int = 0,
-             show_progress: bool | None = False) -> ExportResult:
+             show_progress: bool | None = False, target: str = "host") -> ExportResult:
     """Export the embedded controller of ``problem`` as a C project in the folder ``out`` (module doc).
 
     Parameters
@@ -235,13 +238,20 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
         problem's duration).
     show_progress : bool or None
         Progress of the recorded run on stderr (as for ``problems.run_problem``).
+    target : str
+        One of ``firmware.TARGETS``: ``host`` (the C project alone) or ``cortex-m7`` (the firmware build and
+        the recorded run's replay for it as well).
 
     Raises
     ------
     ConfigError
-        If ``out`` cannot be a folder, the problem is not a course of stops or a leg cannot be planned.
+        If ``target`` is not one of ``firmware.TARGETS``, ``out`` cannot be a folder, the problem is not a
+        course of stops or a leg cannot be planned.
     """
     from rollbot_oc.problems import run_problem
+
+    if target not in TARGETS:
+        raise ConfigError(f"target {target!r} is not one of: {', '.join(TARGETS)}")
 
     folder = OutputFolder(out)  # checked and created before anything is computed
     s = settings or EMBEDDED_SETTINGS
@@ -269,9 +279,12 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     for name in HAND_WRITTEN:
         atomic_write_text(folder / name, (templates / name).read_text())
     atomic_write_text(folder / LOG_NAME, _log_text(log))
+    if target != "host":
+        write_firmware(folder.path, log)
     metrics = {k: v for k, v in run.metrics.items() if not k.startswith("step_time") and k != "wall_time"}
     atomic_write_text(folder / "export.json", to_json({
-        "problem": problem.name, "periods": int(log.shape[0]), "sizes": sizes, "legs": reference.legs,
+        "problem": problem.name, "target": target, "periods": int(log.shape[0]), "sizes": sizes,
+        "legs": reference.legs,
         "controller": controller.report()["statuses"], "metrics": metrics}) + "\n")
     return ExportResult(folder.path, step, reference, run.metrics, log, sizes)
 

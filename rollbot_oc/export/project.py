@@ -290,7 +290,8 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
 
 
 def build(folder, target: str | None = None, jobs: int = 1) -> subprocess.CompletedProcess:
-    """Run ``make`` (or ``make target``) in an exported folder; the completed process (its output kept).
+    """Run ``make`` (or ``make target``, several targets separated by spaces) in an exported folder; the
+    completed process (its output kept).
 
     Raises
     ------
@@ -305,7 +306,7 @@ def build(folder, target: str | None = None, jobs: int = 1) -> subprocess.Comple
         raise ConfigError("building the exported controller needs make and a C compiler (cc, gcc or clang)")
     env = dict(os.environ)
     env.setdefault("CC", compiler())
-    command = ["make", "-C", str(folder), f"-j{jobs}"] + ([target] if target else [])
+    command = ["make", "-C", str(folder), f"-j{jobs}"] + (target.split() if target else [])
     return subprocess.run(command, capture_output=True, text=True, timeout=BUILD_TIMEOUT, env=env)
 
 

@@ -14,9 +14,9 @@ QEMU_TIMEOUT ?= 1800
 ARM_ARCH = -mcpu=cortex-m7 -mfpu=fpv5-d16 -mfloat-abi=hard -mthumb
 ARM_CFLAGS ?= -std=c99 -O2 -Wall -Werror -ffunction-sections -fdata-sections
 ARM_OBJECTS = $(addprefix arm/,$(OBJECTS) firmware_main.o firmware_startup.o)
-QEMU_ARGS = -machine mps2-an500 -nographic -monitor none -serial none \
-	-semihosting-config enable=on,target=native,arg=app.elf,arg=firmware_replay.bin,arg=firmware_commands.bin,arg=$(PERIODS) \
-	-icount shift=0 -kernel app.elf
+QEMU_ARGS = -machine mps2-an500 -nographic -monitor none -serial none -icount shift=0 -kernel app.elf \
+	-semihosting-config enable=on,target=native,arg=app.elf,arg=firmware_replay.bin,arg=firmware_commands.bin,$\
+	arg=$(PERIODS)
 
 .PHONY: firmware qemu-check clean-firmware
 

@@ -11,8 +11,9 @@
  * The measurements are those of the export's recorded closed-loop run; the reference windows are not in the
  * file: rollbot_step computes them from the course compiled in (rollbot_data.c), as on the robot.
  *
- * OUT (little-endian): "RBFWOUT1", then uint32 version (1), periods, context bytes, stack peak bytes (0 on the
- * host), double instructions per SysTick tick (0 on the host); then per period: double command (rad/s^2),
+ * OUT (little-endian): "RBFWOUT1", then uint32 version (1), periods, context bytes, the deepest stack a call of
+ * rollbot_step reached, in bytes (from the caller's stack pointer; painted before each call; 0 on the host),
+ * double instructions per SysTick tick (0 on the host); then per period: double command (rad/s^2),
  * int32 status, uint32 calls of rollbot_period, uint64 instructions of rollbot_step, uint64 instructions in
  * rollbot_period (0 on the host).
  *
@@ -80,33 +81,44 @@ static double calibrate(void) {
 extern uint32_t __stack_limit__;
 #define STACK_PAINT 0xA5A5A5A5u
 
-/* Fill the unused stack (below this frame, with a margin) with a pattern, to find the peak afterwards. */
-static void paint_stack(void) {
-    volatile uint32_t* p = &__stack_limit__;
+static const uint32_t* stack_pointer(void) {
     uint32_t* sp;
     __asm volatile("mov %0, sp" : "=r"(sp));
-    while ((uint32_t*)p < sp - 64) *p++ = STACK_PAINT;
+    return sp;
 }
 
-static uint32_t stack_peak(void) {
-    extern uint32_t __stack_top__;
+/* Fill the free stack, from its limit to below the caller's frame, with a pattern; stack_used then finds how deep
+ * a call from that frame went (the step's stack, without the replay's stdio). */
+static void paint_stack(const uint32_t* below) {
+    volatile uint32_t* p = &__stack_limit__;
+    while ((const uint32_t*)p < below) *p++ = STACK_PAINT;
+}
+
+static uint32_t stack_used(const uint32_t* below, const uint32_t* from) {
     const uint32_t* p = &__stack_limit__;
-    while (p < &__stack_top__ && *p == STACK_PAINT) ++p;
-    return (uint32_t)((const char*)&__stack_top__ - (const char*)p);
+    while (p < below && *p == STACK_PAINT) ++p;
+    return (uint32_t)((const char*)from - (const char*)p);
 }
 #else
 static uint64_t ticks(void) { return 0; }
 static void ticks_start(void) {}
 static double calibrate(void) { return 0.0; }
-static void paint_stack(void) {}
-static uint32_t stack_peak(void) { return 0; }
+static uint32_t no_stack[32];
+static const uint32_t* stack_pointer(void) { return no_stack + 32; }
+static void paint_stack(const uint32_t* below) { (void)below; }
+static uint32_t stack_used(const uint32_t* below, const uint32_t* from) {
+    (void)below;
+    (void)from;
+    return 0;
+}
 #endif
 
 static uint64_t period_ticks;
 static uint32_t period_calls;
 
-int __real_rollbot_period(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int __wrap_rollbot_period(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+/* The generated step's signature (a compile error if rollbot_period.h declares another one). */
+typedef int period_function(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+period_function rollbot_period, __real_rollbot_period, __wrap_rollbot_period;
 
 /* Every call of the generated step (the linker's --wrap=rollbot_period), timed. */
 int __wrap_rollbot_period(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
@@ -133,7 +145,7 @@ static int write_u32(FILE* f, uint32_t v) { return fwrite(&v, sizeof v, 1, f) ==
 int main(int argc, char** argv) {
     FILE *in, *out;
     char magic[8];
-    uint32_t header[4], period, periods;
+    uint32_t header[4], period, periods, stack = 0;
     double row[REPLAY_DOUBLES], per_tick;
     rollbot_command command;
     out_row o;
@@ -155,7 +167,6 @@ int main(int argc, char** argv) {
     }
     ticks_start();
     per_tick = calibrate();
-    paint_stack();
     fwrite("RBFWOUT1", 1, 8, out);
     write_u32(out, 1);
     write_u32(out, periods);
@@ -171,14 +182,21 @@ int main(int argc, char** argv) {
             return 2;
         }
         memcpy(&m, row, sizeof m);
-        period_ticks = 0;
-        period_calls = 0;
-        start = ticks();
-        if (rollbot_step(&ctx, &m, &command)) {
-            fprintf(stderr, "firmware: rollbot_step failed at period %lu\n", (unsigned long)period);
-            return 1;
+        {
+            const uint32_t* sp = stack_pointer();
+            uint32_t used;
+            paint_stack(sp - 16);
+            period_ticks = 0;
+            period_calls = 0;
+            start = ticks();
+            if (rollbot_step(&ctx, &m, &command)) {
+                fprintf(stderr, "firmware: rollbot_step failed at period %lu\n", (unsigned long)period);
+                return 1;
+            }
+            o.step_instructions = (uint64_t)((double)(ticks() - start) * per_tick + 0.5);
+            used = stack_used(sp - 16, sp);
+            if (used > stack) stack = used;
         }
-        o.step_instructions = (uint64_t)((double)(ticks() - start) * per_tick + 0.5);
         o.period_instructions = (uint64_t)((double)period_ticks * per_tick + 0.5);
         o.accel = command.accel;
         o.status = command.status;
@@ -189,7 +207,7 @@ int main(int argc, char** argv) {
         }
     }
     fclose(in);
-    if (fseek(out, 20, SEEK_SET) != 0 || !write_u32(out, stack_peak()) || fclose(out) != 0) {
+    if (fseek(out, 20, SEEK_SET) != 0 || !write_u32(out, stack) || fclose(out) != 0) {
         fprintf(stderr, "firmware: cannot write %s\n", argv[2]);
         return 2;
     }

@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from rollbot_oc.export.firmware import parse_check, qemu_check
+from rollbot_oc.export.firmware import missing_tools, parse_check, qemu_check
 from rollbot_oc.export.project import export_c, read_export
 from rollbot_oc.scenarios import load_bundled
 
@@ -28,6 +28,10 @@ CPI = (1.0, 2.0)
 
 
 def main():
+    missing = missing_tools()
+    if missing:
+        print(f"bench_firmware: skipped: no {', '.join(missing)} (docs/firmware.md says how to install them)")
+        return
     args = sys.argv[1:]
     periods = int(args[args.index("--periods") + 1]) if "--periods" in args else 0
     folder = Path(args[args.index("--out") + 1]) if "--out" in args else Path(tempfile.mkdtemp()) / "rollbot_c"
@@ -47,7 +51,8 @@ def main():
           f"recorded run's {h['periods']} periods of 10 ms replayed")
     print(f"  export {exported:.1f} s, build (host and arm-none-eabi-gcc -O2, make -j2) and qemu-check {checked:.1f} s "
           "on a 2-core machine shared with other work")
-    lines = done.stdout[done.stdout.index("replayed "):].strip().splitlines()
+    lines = [line for line in done.stdout[done.stdout.index("replayed "):].strip().splitlines()
+             if not line.startswith("make")]
     print("  make qemu-check:\n    " + "\n    ".join(lines))
     print(f"\nInstructions into time at {CLOCK / 1e6:.0f} MHz, CPI {CPI[0]:g} to {CPI[1]:g} (module doc); the NMPC's "
           f"interval is 120 ms:")

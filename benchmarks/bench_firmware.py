@@ -37,7 +37,8 @@ def main():
     folder = Path(args[args.index("--out") + 1]) if "--out" in args else Path(tempfile.mkdtemp()) / "rollbot_c"
     problem = load_bundled("n_shape")
     start = time.perf_counter()
-    if not (folder / "firmware.mk").is_file():
+    reused = (folder / "firmware.mk").is_file()
+    if not reused:
         export_c(folder, problem, target="cortex-m7")
     exported = time.perf_counter() - start
     start = time.perf_counter()
@@ -49,14 +50,15 @@ def main():
     h = read_export(folder)
     print(f"Exported controller on a Cortex-M7 (QEMU mps2-an500), N-shape (bundled): {found['periods']} of the "
           f"recorded run's {h['periods']} periods of 10 ms replayed")
-    print(f"  export {exported:.1f} s, build (host and arm-none-eabi-gcc -O2, make -j2) and qemu-check {checked:.1f} s "
-          "on a 2-core machine shared with other work")
+    print(f"  export {'reused' if reused else f'{exported:.1f} s'}, build (host and arm-none-eabi-gcc -O2, make -j2; "
+          f"what was not built) and qemu-check {checked:.1f} s on a 2-core machine shared with other work")
     lines = [line for line in done.stdout[done.stdout.index("replayed "):].strip().splitlines()
              if not line.startswith("make")]
     print("  make qemu-check:\n    " + "\n    ".join(lines))
     print(f"\nInstructions into time at {CLOCK / 1e6:.0f} MHz, CPI {CPI[0]:g} to {CPI[1]:g} (module doc); the NMPC's "
           f"interval is 120 ms:")
     for what, key in (("per solve (rollbot_period at a solve instant)", "per_solve"),
+                      ("per interval (rollbot_step from a solve instant to the next)", "per_interval"),
                       ("per period (rollbot_step, every period)", "per_period")):
         med, p95, top = found[key]
         row = ", ".join(f"{name} {v / 1e6:.2f} M = {1e3 * v * CPI[0] / CLOCK:.1f} to {1e3 * v * CPI[1] / CLOCK:.1f} ms"

@@ -23,7 +23,7 @@ def _needs_tools():
 
 
 @pytest.mark.slow
-def test_the_firmware_replays_the_recorded_run_on_qemu(c_export):
+def test_the_firmware_replays_the_recorded_run_on_qemu(c_export, tmp_path):
     _needs_tools()
     problem, result, built = c_export
     assert built is not None and built[0] == 0, built
@@ -40,6 +40,7 @@ def test_the_firmware_replays_the_recorded_run_on_qemu(c_export):
     median, p95, top = found["per_solve"]
     assert 0 < median <= p95 <= top
     assert found["per_period"][0] < median  # a period between solves costs less than a solve
+    assert found["per_interval"][0] > median  # an interval: its solve and the periods after it
     assert found["ram_context"] >= result.sizes["work_bytes"] // 2  # the work arrays, with 4-byte pointers and ints
     assert found["ram"] >= found["ram_context"] + found["stack"] > found["ram_context"]
     assert 0 < found["flash_code"] < found["flash"] <= found["image_flash"]
@@ -49,7 +50,7 @@ def test_the_firmware_replays_the_recorded_run_on_qemu(c_export):
     out = (folder / "firmware_commands.bin").read_bytes()
     row = 32 + 32 * (PERIODS // 2)
     accel = struct.unpack_from("<d", out, row)[0] + 1e-6
-    changed = folder.parent / "changed_commands.bin"
+    changed = tmp_path / "changed_commands.bin"
     changed.write_bytes(out[:row] + struct.pack("<d", accel) + out[row + 8:])
     check = subprocess.run(["python3", "firmware_check.py", "--map", "app.map", REPLAY_NAME, str(changed),
                             "host_commands.bin"], cwd=folder, capture_output=True, text=True)

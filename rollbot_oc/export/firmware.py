@@ -35,15 +35,14 @@ import numpy as np
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.outputs import atomic_write_text
 
-__all__ = ["TARGETS", "FIRMWARE_FILES", "REPLAY_NAME", "TOOLS", "DEFAULT_PERIODS", "write_firmware", "replay_bytes",
-           "missing_tools", "qemu_check", "parse_check"]
+__all__ = ["TARGETS", "FIRMWARE_FILES", "REPLAY_NAME", "TOOLS", "write_firmware", "replay_bytes", "missing_tools",
+           "qemu_check", "parse_check"]
 
 TARGETS = ("host", "cortex-m7")  # what ``export-c --target`` builds for: the host project, and the firmware too
 FIRMWARE_FILES = ("firmware_main.c", "firmware_startup.c", "firmware_mps2_an500.ld", "firmware.mk",
                   "firmware_check.py")
 REPLAY_NAME = "firmware_replay.bin"
 TOOLS = ("arm-none-eabi-gcc", "qemu-system-arm", "make", "python3")
-DEFAULT_PERIODS = 500  # periods ``make qemu-check`` replays by default (firmware.mk's PERIODS): the first 5 s
 CHECK_TIMEOUT = 3600.0  # s, for make qemu-check (the build of the generated step takes about a minute)
 MEASUREMENT = 12  # doubles of a measurement (rollbot_measurement)
 
@@ -81,7 +80,8 @@ def qemu_check(folder, periods: int | None = None, jobs: int = 2,
                timeout: float = CHECK_TIMEOUT) -> subprocess.CompletedProcess:
     """Run ``make qemu-check`` in a folder exported with ``--target cortex-m7`` (the completed process).
 
-    ``periods``: the periods replayed (``DEFAULT_PERIODS`` by default; 0 for the whole recorded run).
+    ``periods``: the periods replayed (``firmware.mk``'s ``PERIODS`` by default, the first 500; 0 for the whole
+    recorded run).
 
     Raises
     ------
@@ -106,7 +106,7 @@ def qemu_check(folder, periods: int | None = None, jobs: int = 2,
 
 def parse_check(text: str) -> dict:
     """The figures ``make qemu-check`` printed: ``diff``, ``statuses_differ``, ``diff_python``, ``periods``,
-    ``solves``, ``per_solve`` and ``per_period`` (median, p95, max instructions), ``ram``, ``ram_context``,
+    ``solves``, ``per_solve``, ``per_interval`` and ``per_period`` (median, p95, max instructions), ``ram``, ``ram_context``,
     ``stack``, ``flash``, ``flash_code``, ``flash_constants``, ``image_ram``, ``image_flash``, ``passed``.
 
     Raises
@@ -119,6 +119,7 @@ def parse_check(text: str) -> dict:
         "diff": r"max \|diff\| = (\S+) .*?, (\d+) statuses differ",
         "diff_python": r"against the Python controller's recorded commands: (\S+),",
         "per_solve": r"instructions per solve: median (\d+), p95 (\d+), max (\d+)",
+        "per_interval": r"instructions per interval: median (\d+), p95 (\d+), max (\d+)",
         "per_period": r"instructions per period: median (\d+), p95 (\d+), max (\d+)",
         "ram": r"RAM: step (\d+) bytes .*?: context (\d+) .*?stack peak (\d+); whole image (\d+) bytes",
         "flash": r"flash: step (\d+) bytes: code (\d+), constants (\d+) .*?; whole image (\d+) bytes",
@@ -134,6 +135,7 @@ def parse_check(text: str) -> dict:
             "diff": float(found["diff"][0]), "statuses_differ": int(found["diff"][1]),
             "diff_python": float(found["diff_python"][0]),
             "per_solve": tuple(int(v) for v in found["per_solve"]),
+            "per_interval": tuple(int(v) for v in found["per_interval"]),
             "per_period": tuple(int(v) for v in found["per_period"]),
             "ram": int(found["ram"][0]), "ram_context": int(found["ram"][1]), "stack": int(found["ram"][2]),
             "image_ram": int(found["ram"][3]), "flash": int(found["flash"][0]), "flash_code": int(found["flash"][1]),

@@ -6,6 +6,7 @@ Written by ``rollbot-oc export-c --target cortex-m7`` (the Python standard libra
 
     max |diff| = ...                       the firmware's commands against the host build's (rad/s^2)
     instructions per solve: median N, p95 N, max N    rollbot_period at the solve instants
+    instructions per interval: ...                    rollbot_step from a solve instant to the next
     instructions per period: ...                      rollbot_step over every period
     RAM: ... flash: ...                                from the linker map
 
@@ -165,6 +166,14 @@ def main(argv=None):
         print(f"instructions per solve: median {med}, p95 {p95}, max {top}")
     else:
         print("instructions per solve: none (no solve instant replayed)")
+    instants = [i for i, r in enumerate(fw) if r[1] in (SOLVED, QP_FAILED)]
+    intervals = [sum(steps[a:b]) for a, b in zip(instants[:-1], instants[1:])]
+    if intervals:
+        med, p95, top = percentiles(intervals)
+        print(f"instructions per interval: median {med}, p95 {p95}, max {top} (rollbot_step, every period from a "
+              f"solve instant to the next, {len(intervals)} intervals)")
+    else:
+        print("instructions per interval: none (fewer than two solve instants replayed)")
     med, p95, top = percentiles(steps)
     print(f"instructions per period: median {med}, p95 {p95}, max {top}, mean {sum(steps) / n:.0f} (rollbot_step, "
           "every period)")

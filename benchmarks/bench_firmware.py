@@ -50,8 +50,9 @@ def main():
     h = read_export(folder)
     print(f"Exported controller on a Cortex-M7 (QEMU mps2-an500), N-shape (bundled): {found['periods']} of the "
           f"recorded run's {h['periods']} periods of 10 ms replayed")
-    print(f"  export {'reused' if reused else f'{exported:.1f} s'}, build (host and arm-none-eabi-gcc -O2, make -j2; "
-          f"what was not built) and qemu-check {checked:.1f} s on a 2-core machine shared with other work")
+    built = "what was not built" if reused else "host and arm-none-eabi-gcc -O2, make -j2"
+    print(f"  export {'reused' if reused else f'{exported:.1f} s'}, build ({built}) and qemu-check {checked:.1f} s on a "
+          "2-core machine shared with other work")
     lines = [line for line in done.stdout[done.stdout.index("replayed "):].strip().splitlines()
              if not line.startswith("make")]
     print("  make qemu-check:\n    " + "\n    ".join(lines))

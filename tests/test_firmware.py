@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from rollbot_oc.cli import EXIT_USAGE, main
-from rollbot_oc.export.firmware import REPLAY_NAME, missing_tools, parse_check, qemu_check, replay_bytes
+from rollbot_oc.export.firmware import (FIRMWARE_FILES, REPLAY_NAME, missing_tools, parse_check, qemu_check,
+                                       remove_firmware, replay_bytes, write_firmware)
 
 PERIODS = 300  # the first 3 s: 25 solve instants
 
@@ -65,6 +66,14 @@ def test_the_replay_file_holds_the_log_as_written():
     assert np.array_equal(np.frombuffer(data[24:], "<f8").reshape(5, 14), log)
     with pytest.raises(ValueError, match="14 values"):
         replay_bytes(log[:, :12])
+
+
+def test_the_firmware_files_are_written_and_removed_whole(tmp_path):
+    write_firmware(tmp_path, np.zeros((3, 14)))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted((*FIRMWARE_FILES, REPLAY_NAME))
+    (tmp_path / "main.c").write_text("")
+    remove_firmware(tmp_path)  # what a host export over a Cortex-M7 one does
+    assert [p.name for p in tmp_path.iterdir()] == ["main.c"]
 
 
 def test_export_c_refuses_an_unknown_target(tmp_path, capsys):

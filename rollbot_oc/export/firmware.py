@@ -35,8 +35,8 @@ import numpy as np
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.outputs import atomic_write_text
 
-__all__ = ["TARGETS", "FIRMWARE_FILES", "REPLAY_NAME", "TOOLS", "write_firmware", "replay_bytes", "missing_tools",
-           "qemu_check", "parse_check"]
+__all__ = ["TARGETS", "FIRMWARE_FILES", "REPLAY_NAME", "TOOLS", "write_firmware", "remove_firmware", "replay_bytes",
+           "missing_tools", "qemu_check", "parse_check"]
 
 TARGETS = ("host", "cortex-m7")  # what ``export-c --target`` builds for: the host project, and the firmware too
 FIRMWARE_FILES = ("firmware_main.c", "firmware_startup.c", "firmware_mps2_an500.ld", "firmware.mk",
@@ -66,6 +66,13 @@ def write_firmware(folder, log: np.ndarray):
     tmp = folder / (REPLAY_NAME + ".tmp")
     tmp.write_bytes(replay_bytes(log))
     os.replace(tmp, folder / REPLAY_NAME)
+
+
+def remove_firmware(folder):
+    """Remove the firmware's files from an exported folder (a host export over a Cortex-M7 one: its replay
+    would be another run's)."""
+    for name in (*FIRMWARE_FILES, REPLAY_NAME):
+        (Path(folder) / name).unlink(missing_ok=True)
 
 
 def missing_tools() -> list[str]:

@@ -40,7 +40,7 @@ import numpy as np
 from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.errors import ConfigError
 from rollbot_oc.export.embedded import EmbeddedController
-from rollbot_oc.export.firmware import TARGETS, write_firmware
+from rollbot_oc.export.firmware import TARGETS, remove_firmware, write_firmware
 from rollbot_oc.export.reference import EmbeddedReference, plan_reference
 from rollbot_oc.export.step import EMBEDDED_SETTINGS, StepFunction, control_step
 from rollbot_oc.outputs import OutputFolder, atomic_write_text, to_json
@@ -279,7 +279,9 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     for name in HAND_WRITTEN:
         atomic_write_text(folder / name, (templates / name).read_text())
     atomic_write_text(folder / LOG_NAME, _log_text(log))
-    if target != "host":
+    if target == "host":
+        remove_firmware(folder.path)
+    else:
         write_firmware(folder.path, log)
     metrics = {k: v for k, v in run.metrics.items() if not k.startswith("step_time") and k != "wall_time"}
     atomic_write_text(folder / "export.json", to_json({

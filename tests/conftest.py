@@ -20,4 +20,4 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
 # runs several tests share, computed once per session (tests/shared.py)
-from shared import n_shape_pid_run, n_shape_runs, pid_circle_run  # noqa: E402,F401
+from shared import c_export, n_shape_pid_run, n_shape_runs, pid_circle_run  # noqa: E402,F401

@@ -102,3 +102,36 @@ def pid_circle_run(tmp_path_factory):
                        lambda: run_problem(load_bundled(name), "pid", show_progress=False))
 
     return run
+
+
+@pytest.fixture(scope="session")
+def c_export(tmp_path_factory):
+    """The N-shape's first two legs (40 s at most) exported as C with the firmware build (``export_c``, target
+    ``cortex-m7``) and built for the host (``make all firmware_host``, -j2), once per session in a folder the
+    workers share: ``(problem, result, built)``, ``built`` the build's ``(returncode, stderr)`` or None where there
+    is no C compiler or make.  Tests read the folder and build further targets in it, but change none of its
+    files.  Used by test_export and test_firmware."""
+    import shutil
+
+    from rollbot_oc.model.codegen import compiler
+
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER") and fcntl is not None:
+        root = root.parent  # the folder the workers' own temporary folders share
+    folder = root / "shared_c_export"
+    n_shape = n_shape_problem()
+    problem = replace(n_shape, mission=n_shape.mission.first(2), duration=40.0)
+
+    def compute():
+        from rollbot_oc.export.project import build, export_c
+
+        if folder.exists():
+            shutil.rmtree(folder)  # a worker that failed half-way left it
+        result = export_c(folder, problem, target="cortex-m7")
+        if compiler() is None or shutil.which("make") is None:
+            return result, None
+        done = build(folder, "all firmware_host", jobs=2)
+        return result, (done.returncode, done.stderr)
+
+    result, built = _shared(tmp_path_factory, "c_export", compute)
+    return problem, result, built

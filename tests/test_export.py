@@ -3,7 +3,7 @@ log within 1e-9 of the Python controller, and drives the simulator through ctype
 
 import hashlib
 import re
-import shutil
+import subprocess
 from dataclasses import replace
 
 import casadi as ca
@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from rollbot_oc.app.cli import EXIT_USAGE, main
-from rollbot_oc.model.codegen import compiler
 from rollbot_oc.control.nmpc.tracking import tracking_problem
 from rollbot_oc.model.params import RollbotParams
 from rollbot_oc.scenarios.problem import run_problem
@@ -62,17 +61,16 @@ def test_the_exported_filter_is_the_numeric_one(n_shape_runs):
 
 
 @pytest.mark.slow
-def test_export_builds_replays_a_whole_run_and_closes_the_loop_through_c(tmp_path):
-    """One test (one export and one build, whichever worker runs it): the project is written whole, builds with
-    -std=c99 -O2 -Wall -Werror, ``make check`` replays every period of a whole run (the N-shape's first two legs:
-    a leg ahead planned, a stop left) within 1e-9 (and fails on a log the controller did not give), and the
-    simulator driving the C library gives the same run.  ``benchmarks/bench_export_c.py`` runs the whole N-shape."""
+def test_export_builds_replays_a_whole_run_and_closes_the_loop_through_c(c_export, tmp_path):
+    """One test (on the session's one export and host build, ``c_export``, shared with test_firmware): the project
+    is written whole, builds with -std=c99 -O2 -Wall -Werror, ``make check`` replays every period of a whole run
+    (the N-shape's first two legs: a leg ahead planned, a stop left) within 1e-9 (and fails on a log the controller
+    did not give), and the simulator driving the C library gives the same run.  ``benchmarks/bench_export_c.py``
+    runs the whole N-shape."""
     from rollbot_oc.export.library import CController
-    from rollbot_oc.export.project import build, export_c
+    from rollbot_oc.export.project import build
 
-    n_shape = load_bundled("n_shape")
-    problem = replace(n_shape, mission=n_shape.mission.first(2), duration=40.0)
-    result = export_c(tmp_path / "rollbot_c", problem)
+    problem, result, built = c_export
     folder = result.folder
     for name in ("rollbot_period.c", "rollbot_period.h", "rollbot_config.h", "rollbot_data.c", "rollbot_controller.h",
                  "rollbot_controller.c", "main.c", "Makefile", "README.md", "replay_log.txt", "export.json"):
@@ -83,12 +81,12 @@ def test_export_builds_replays_a_whole_run_and_closes_the_loop_through_c(tmp_pat
     assert result.metrics["completed"] and len(result.metrics["stop_errors"]) == 2
     assert result.log.shape[1] == 14 and result.log.shape[0] == int(round(result.metrics["duration"] / 0.01))
     assert result.sizes["work_bytes"] > 0 and result.sizes["memory_bytes"] == 8 * result.step.memory.size
-    if compiler() is None or shutil.which("make") is None:
+    if built is None:
         pytest.skip("no C compiler or make: the exported project cannot be built here")
 
-    built = build(folder, jobs=2)
-    assert built.returncode == 0, built.stderr[-2000:]
-    assert "warning" not in built.stderr.lower()  # -Wall -Werror: a warning would have failed the build
+    returncode, stderr = built
+    assert returncode == 0, stderr[-2000:]
+    assert "warning" not in stderr.lower()  # -Wall -Werror: a warning would have failed the build
     check = build(folder, "check")
     assert check.returncode == 0, check.stdout[-2000:] + check.stderr[-2000:]
     found = re.search(r"max \|diff\| = (\S+)", check.stdout)
@@ -107,13 +105,13 @@ def test_export_builds_replays_a_whole_run_and_closes_the_loop_through_c(tmp_pat
     assert run.metrics["completion_time"] == pytest.approx(result.metrics["completion_time"], abs=1e-9)
     assert np.allclose(run.metrics["stop_errors"], result.metrics["stop_errors"], rtol=0, atol=1e-9)
 
-    # a log the controller did not give fails the check
-    log = folder / "replay_log.txt"
-    lines = log.read_text().splitlines()[:200]
+    # a log the controller did not give fails the check (a copy: the shared folder stays as exported)
+    log = tmp_path / "replay_log.txt"
+    lines = (folder / "replay_log.txt").read_text().splitlines()[:200]
     fields = lines[-1].split()
     fields[12] = repr(float(fields[12]) + 1e-6)  # a command 1e-6 rad/s^2 off
     log.write_text("\n".join(lines[:-1] + [" ".join(fields)]) + "\n")
-    check = build(folder, "check")
+    check = subprocess.run([str(folder / "replay"), str(log)], capture_output=True, text=True)
     assert check.returncode != 0 and "check FAILED" in check.stdout
 
 

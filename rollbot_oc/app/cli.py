@@ -38,6 +38,7 @@ from contextlib import contextmanager
 from rollbot_oc import __version__
 from rollbot_oc.core.errors import ConfigError, NumericalFailure, interruptible
 from rollbot_oc.core.outputs import output_folder, to_json, user_path, write_json
+from rollbot_oc.export.firmware import TARGETS as FIRMWARE_TARGETS
 from rollbot_oc.model.params import load_params
 
 __all__ = ["main", "build_parser", "EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_INTERNAL", "EXIT_INTERRUPTED"]
@@ -298,8 +299,11 @@ def _cmd_export_c(args) -> int:
                           "closed-loop problems")
     mission = problem.mission
     embedded = bool(mission.stops) and mission.orbit is None and not mission.gates
+    if args.target != "host" and not embedded:
+        raise ConfigError(f"export-c --target {args.target}: the firmware replays the replay project of a course "
+                          f"of stops; {problem.name} is a {problem.kind} problem")
     if embedded:  # the embedded controller's replay project (a course of stops planned at export time)
-        result = export_c(out.path, problem, seed=args.seed, show_progress=_show_progress(args))
+        result = export_c(out.path, problem, seed=args.seed, show_progress=_show_progress(args), target=args.target)
     else:
         atomic_write_text(out.path / "Makefile", "CC ?= cc\n\n.PHONY: all\nall: librollbot_step.so\n\n"
                                                  "-include step.mk\n")
@@ -308,7 +312,8 @@ def _cmd_export_c(args) -> int:
     if done.returncode != 0:
         lines = (done.stderr or done.stdout).strip().splitlines()
         raise ConfigError(f"export-c {out.path}: make {LIBRARY} failed" + (f": {lines[-1]}" if lines else ""))
-    data = {"folder": str(out.path), "problem": problem.name, "step": {k: step[k] for k in ("key", "memory", "N")}}
+    data = {"folder": str(out.path), "problem": problem.name, "target": args.target,
+            "step": {k: step[k] for k in ("key", "memory", "N")}}
     if embedded:
         m = result.metrics
         data.update({"periods": int(result.log.shape[0]), "sizes": result.sizes, "completed": m["completed"],
@@ -324,6 +329,8 @@ def _cmd_export_c(args) -> int:
                       f"  periods recorded: {data['periods']}",
                       f"  memory: {result.sizes['memory_bytes']} bytes, work arrays: {result.sizes['work_bytes']} "
                       "bytes", f"  build and check: make -C {out.path} check"]
+            if args.target == "cortex-m7":
+                lines.append(f"  firmware (Cortex-M7 on QEMU): make -C {out.path} qemu-check")
         return "\n".join(lines)
 
     _emit(args, data, text)
@@ -527,6 +534,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_params(p)
     p.add_argument("--seed", type=_seed, default=0, metavar="N", help=f"seed of the recorded run's sensor noise, in "
                    f"[0, {MAX_SEED}] (default 0)")
+    p.add_argument("--target", choices=FIRMWARE_TARGETS, default="host", help="host: the C99 project (default); "
+                   "cortex-m7: also the firmware for QEMU's mps2-an500 board and make qemu-check (arm-none-eabi-gcc, "
+                   "qemu-system-arm; docs/firmware.md)")
     p.add_argument("--json", action="store_true", help="print what was exported as JSON (sizes in bytes)")
     p.set_defaults(run=_cmd_export_c)
 

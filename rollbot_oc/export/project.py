@@ -17,7 +17,9 @@ replay log, and writes into the folder ``out``:
 * ``README.md``: how to build, check and call it;
 * ``Makefile``: ``make`` builds ``replay`` and ``librollbot_controller.so``, ``make check`` replays the
   log and fails if a command differs by more than 1e-9 rad/s^2 or a status differs;
-* ``export.json``: what was exported (sizes in bytes, the legs, the recorded run's metrics).
+* ``export.json``: what was exported (sizes in bytes, the legs, the recorded run's metrics, the target);
+* with ``target="cortex-m7"``, the firmware build too (``export.firmware``: ``make qemu-check`` replays the
+  recorded run on QEMU's Cortex-M7 board).
 
 Every file is written whole (``outputs.atomic_write_text``).  ``build(out)`` runs ``make`` there.
 """
@@ -39,6 +41,7 @@ from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.source import patched
 from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.export.embedded import EmbeddedController
+from rollbot_oc.export.firmware import TARGETS, remove_firmware, write_firmware
 from rollbot_oc.export.reference import EmbeddedReference, plan_reference
 from rollbot_oc.export.step import EMBEDDED_SETTINGS, StepFunction, control_step
 from rollbot_oc.core.outputs import OutputFolder, atomic_write_text, to_json
@@ -165,7 +168,7 @@ def _log_text(log: np.ndarray) -> str:
 
 
 def export_c(out, problem, params=None, settings: NMPCSettings | None = None, seed: int = 0,
-             show_progress: bool | None = False) -> ExportResult:
+             show_progress: bool | None = False, target: str = "host") -> ExportResult:
     """Export the embedded controller of ``problem`` as a C project in the folder ``out`` (module doc).
 
     Parameters
@@ -185,12 +188,19 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
         problem's duration).
     show_progress : bool or None
         Progress of the recorded run on stderr (as for ``scenarios.problem.run_problem``).
+    target : str
+        One of ``firmware.TARGETS``: ``host`` (the C project alone) or ``cortex-m7`` (the firmware build and
+        the recorded run's replay for it as well).
 
     Raises
     ------
     ConfigError
-        If ``out`` cannot be a folder, the problem is not a course of stops or a leg cannot be planned.
+        If ``target`` is not one of ``firmware.TARGETS``, ``out`` cannot be a folder, the problem is not a
+        course of stops or a leg cannot be planned.
     """
+
+    if target not in TARGETS:
+        raise ConfigError(f"target {target!r} is not one of: {', '.join(TARGETS)}")
 
     folder = OutputFolder(out)  # checked and created before anything is computed
     s = settings or EMBEDDED_SETTINGS
@@ -216,15 +226,21 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     for name in HAND_WRITTEN:
         atomic_write_text(folder / name, (templates / name).read_text())
     atomic_write_text(folder / LOG_NAME, _log_text(log))
+    if target == "host":
+        remove_firmware(folder.path)
+    else:
+        write_firmware(folder.path, log)
     metrics = {k: v for k, v in run.metrics.items() if not k.startswith("step_time") and k != "wall_time"}
     atomic_write_text(folder / "export.json", to_json({
-        "problem": problem.name, "periods": int(log.shape[0]), "sizes": sizes, "legs": reference.legs,
+        "problem": problem.name, "target": target, "periods": int(log.shape[0]), "sizes": sizes,
+        "legs": reference.legs,
         "controller": controller.report()["statuses"], "metrics": metrics}) + "\n")
     return ExportResult(folder.path, step, reference, run.metrics, log, sizes)
 
 
 def build(folder, target: str | None = None, jobs: int = 1) -> subprocess.CompletedProcess:
-    """Run ``make`` (or ``make target``) in an exported folder; the completed process (its output kept).
+    """Run ``make`` (or ``make target``, several targets separated by spaces) in an exported folder; the
+    completed process (its output kept).
 
     Raises
     ------
@@ -237,7 +253,7 @@ def build(folder, target: str | None = None, jobs: int = 1) -> subprocess.Comple
         raise ConfigError("building the exported controller needs make and a C compiler (cc, gcc or clang)")
     env = dict(os.environ)
     env.setdefault("CC", compiler())
-    command = ["make", "-C", str(folder), f"-j{jobs}"] + ([target] if target else [])
+    command = ["make", "-C", str(folder), f"-j{jobs}"] + (target.split() if target else [])
     return subprocess.run(command, capture_output=True, text=True, timeout=BUILD_TIMEOUT, env=env)
 
 

@@ -38,7 +38,7 @@ import time
 from dataclasses import asdict, dataclass, field
 
 from rollbot_oc.core.errors import ConfigError
-from rollbot_oc.robot.transport import Transport
+from rollbot_oc.robot.link import Transport
 
 __all__ = ["FaultSpec", "FaultCounts", "FaultyLink", "LinkStats", "parse_faults", "FAULT_OPTIONS", "REORDER_HOLD"]
 

@@ -27,10 +27,11 @@ from __future__ import annotations
 import select
 import socket
 import time
-from dataclasses import dataclass
 from urllib.parse import parse_qs, urlsplit
 
 from rollbot_oc.core.errors import ConfigError
+from rollbot_oc.robot.faults import FAULT_OPTIONS, FaultyLink, parse_faults
+from rollbot_oc.robot.link import LinkCounters, LinkSpec, Transport
 
 __all__ = ["LinkSpec", "LinkCounters", "Transport", "UdpTransport", "SerialTransport", "parse_link", "open_link",
            "ROLES", "BAUD_RANGE", "DEFAULT_BAUD", "DEFAULT_HOST"]
@@ -40,35 +41,6 @@ DEFAULT_BAUD = 115200
 BAUD_RANGE = (300, 4_000_000)  # baud
 ROLES = ("connect", "bind")
 _MAX_DATAGRAM = 65535
-
-
-@dataclass(frozen=True)
-class LinkSpec:
-    """A parsed link URL.
-
-    Parameters
-    ----------
-    scheme : str
-        ``"udp"`` or ``"serial"``.
-    url : str
-        The URL as given.
-    host : str
-        UDP host (``"127.0.0.1"`` by default); empty for serial.
-    port : int
-        UDP port (0 to 65535; 0: any free port, for binding); 0 for serial.
-    device : str
-        Serial device path (for example ``/dev/ttyUSB0``); empty for UDP.
-    baud : int
-        Serial baud rate, baud; 0 for UDP.
-    """
-
-    scheme: str
-    url: str
-    host: str = ""
-    port: int = 0
-    device: str = ""
-    baud: int = 0
-    faults: object = None  # a faults.FaultSpec from the URL's fault options, or None
 
 
 def _bad(url: str, why: str) -> ConfigError:
@@ -102,7 +74,6 @@ def parse_link(url: str) -> LinkSpec:
         raise _bad(url, f"bad query {parts.query!r}") from None
     if parts.fragment:
         raise _bad(url, f"unexpected fragment {parts.fragment!r}")
-    from rollbot_oc.robot.faults import FAULT_OPTIONS, parse_faults
 
     faults = parse_faults(query, f"link URL {url!r}")
     query = {name: values for name, values in query.items() if name not in FAULT_OPTIONS}
@@ -140,59 +111,6 @@ def parse_link(url: str) -> LinkSpec:
     if not BAUD_RANGE[0] <= baud <= BAUD_RANGE[1]:
         raise _bad(url, f"baud {baud} is out of range [{BAUD_RANGE[0]}, {BAUD_RANGE[1]}]")
     return LinkSpec("serial", url, device=parts.path, baud=baud, faults=faults)
-
-
-@dataclass
-class LinkCounters:
-    """What a transport has moved: frames (0x00 delimiters) and bytes, each way."""
-
-    frames_sent: int = 0
-    bytes_sent: int = 0
-    frames_received: int = 0
-    bytes_received: int = 0
-    bytes_dropped: int = 0  # sent before a bound UDP endpoint knew its peer, or from strangers
-
-    def _sent(self, data: bytes) -> None:
-        self.frames_sent += data.count(0)
-        self.bytes_sent += len(data)
-
-    def _received(self, data: bytes) -> None:
-        self.frames_received += data.count(0)
-        self.bytes_received += len(data)
-
-
-class Transport:
-    """A byte link: ``send``, ``receive``, ``close``; a context manager.
-
-    Attributes
-    ----------
-    spec : LinkSpec
-        The link's URL, parsed.
-    counters : LinkCounters
-        Frames and bytes each way.
-    """
-
-    def __init__(self, spec: LinkSpec):
-        self.spec = spec
-        self.counters = LinkCounters()
-
-    def send(self, data: bytes) -> None:
-        """Send bytes (one or more whole frames, as ``protocol.encode`` makes them)."""
-        raise NotImplementedError
-
-    def receive(self, timeout: float = 0.0) -> bytes:
-        """The bytes that arrived, waiting up to ``timeout`` s for the first; ``b""`` if none did."""
-        raise NotImplementedError
-
-    def close(self) -> None:
-        """Release the socket or port (again: no effect)."""
-        raise NotImplementedError
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
 
 class UdpTransport(Transport):
@@ -349,7 +267,5 @@ def open_link(url: str, role: str = "connect") -> Transport:
         raise ConfigError(f"link role {role!r}: valid are {', '.join(ROLES)}")
     link = UdpTransport(spec, role) if spec.scheme == "udp" else SerialTransport(spec)
     if spec.faults is not None:
-        from rollbot_oc.robot.faults import FaultyLink
-
         return FaultyLink(link, spec.faults)
     return link

@@ -3,6 +3,7 @@ log within 1e-9 of the Python controller, and drives the simulator through ctype
 
 import hashlib
 import re
+import shutil
 import subprocess
 from dataclasses import replace
 
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from rollbot_oc.app.cli import EXIT_USAGE, main
+from rollbot_oc.model.codegen import compiler
 from rollbot_oc.control.nmpc.tracking import tracking_problem
 from rollbot_oc.model.params import RollbotParams
 from rollbot_oc.scenarios.problem import run_problem
@@ -147,9 +149,13 @@ def test_the_step_weighs_the_arrival_only_past_the_legs_end():
 
 
 def test_export_c_refuses_what_it_cannot_export(tmp_path, capsys):
-    assert main(["export-c", "--out", str(tmp_path / "c"), "--problem", "circle_R035"]) == EXIT_USAGE
+    assert main(["export-c", "--out", str(tmp_path / "c"), "--problem", "open_loop"]) == EXIT_USAGE
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "course of stops" in err[0] and "Traceback" not in err[0]
+    assert len(err) == 1 and "open-loop" in err[0] and "Traceback" not in err[0]
+    assert main(["export-c", "--out", str(tmp_path / "c"), "--problem", "circle_R035", "--target", "cortex-m7"]) \
+        == EXIT_USAGE
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "course of stops" in err[0]
     afile = tmp_path / "afile"
     afile.write_text("")
     assert main(["export-c", "--out", str(afile)]) == EXIT_USAGE
@@ -165,3 +171,53 @@ def test_generated_code_edits_refuse_an_unexpected_source():
     for edit in (_keep_unchanged_factors, _qp_failure_not_an_error):
         with pytest.raises(RuntimeError, match="CasADi version"):
             edit("int main(void) { return 0; }\n")
+
+
+@pytest.mark.skipif(compiler() is None or shutil.which("make") is None,
+                    reason="no C compiler or make: the exported step cannot be built here")
+def test_the_exported_step_is_the_nmpcs_step(tmp_path, capsys):
+    """``export-c`` of a circle writes the NMPC's step as C and builds it; the NMPC with that library as its step
+    (``run --controller c``) gives the run of the NMPC itself, key for key (the library's hash added), and a
+    perturbed library (the filtered position moved 1 um) gives another run; a library exported for other
+    settings is refused."""
+    from rollbot_oc.control.nmpc import NMPCSettings
+    from rollbot_oc.control.nmpc.source import FLAGS, LIBRARY, MANIFEST
+    from rollbot_oc.core.errors import ConfigError
+    from rollbot_oc.scenarios.problem import make_controller
+
+    folder = tmp_path / "step"
+    assert main(["export-c", "--problem", "circle_R065", "--out", str(folder), "--json"]) == 0
+    capsys.readouterr()
+    for name in ("rollbot_step.c", "rollbot_step.h", MANIFEST, "step.mk", "Makefile", LIBRARY):
+        assert (folder / name).is_file(), name
+    problem = load_bundled("circle_R065").with_duration(3.0)
+    wall = ("wall_time", "solve_time", "plan_time", "plan_solve_time", "step_time")
+
+    def metrics(**options):
+        m = run_problem(problem, make_controller("nmpc", problem, **options), show_progress=False).metrics
+        for plan in m.get("plans") or []:
+            plan.pop("solve_time", None)
+        return {k: v for k, v in m.items() if not k.startswith(wall)}
+
+    nmpc, c = metrics(), metrics(step_library=folder)
+    assert c.pop("library_sha256") == hashlib.sha256((folder / LIBRARY).read_bytes()).hexdigest()
+    assert c == nmpc and nmpc["solves"] > 0 and nmpc["failed_solves"] == 0
+
+    source = (folder / "rollbot_step.c").read_text()
+    call = re.search(r"int rollbot_measure\(.*?\{\n  return (casadi_f\d+)\(arg, res, iw, w, mem\);", source, re.S)
+    perturbed = tmp_path / "perturbed"
+    perturbed.mkdir()
+    (perturbed / MANIFEST).write_text((folder / MANIFEST).read_text())
+    (perturbed / "rollbot_step.c").write_text(source.replace(
+        call.group(0), call.group(0).replace(f"return {call.group(1)}(arg, res, iw, w, mem);",
+                                             f"int r = {call.group(1)}(arg, res, iw, w, mem); "
+                                             "if (res[0]) res[0][0] += 1e-6; return r;")))
+    flags = [f for f in FLAGS if not f.startswith("-O")] + ["-O0"]  # quicker to build; the same arithmetic on x86-64
+    subprocess.run([compiler(), "-shared", "-fPIC", *flags, str(perturbed / "rollbot_step.c"), "-o",
+                    str(perturbed / LIBRARY), "-lm"], check=True, capture_output=True, timeout=600)
+    changed = metrics(step_library=perturbed)
+    changed.pop("library_sha256")
+    assert changed != nmpc  # the run it drove is another
+
+    with pytest.raises(ConfigError, match="exported for another step"):
+        make_controller("nmpc", problem, step_library=folder, settings=NMPCSettings(recovery={"max_failures": 5}))

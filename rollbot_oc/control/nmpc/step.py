@@ -197,6 +197,10 @@ class TrackingStep:
         self.modes.go(mode, k, reason)
         self.mem[self.memory["mode"]] = MODE_CODES[mode]
 
+    def in_fallback(self, t_now: float) -> bool:
+        """Whether a fallback (RAMP or PID) commands the motor at ``t_now``, s."""
+        return t_now < self.part("until")[0]
+
     # -- every period ------------------------------------------------------------------------------
     def measure(self, obs: Observation, k: int):
         """The filter's update and the delay compensation: the reduced state (10,) at tick ``k``."""
@@ -210,7 +214,7 @@ class TrackingStep:
         ``keep(k, window)``, if given, is told each window solved on (the run's log)."""
         t_now = k * self.dt
         done = supervisor.done
-        solving = not done and self.modes.mode is not StepMode.OFF and not t_now < self.part("until")[0] \
+        solving = not done and self.modes.mode is not StepMode.OFF and not self.in_fallback(t_now) \
             and (k % self.every == 0 or not self.current)
         n, m = self.memory["w"], self.memory["lam_g"]
         if solving:
@@ -289,7 +293,7 @@ class TrackingStep:
         elif event == "shifted":
             log.fallback_shifted += 1  # keep following the previous solution (its index moves on)
         mode = MODES[int(self.part("mode")[0])]
-        if mode is not self.modes.mode:
+        if mode is not self.modes.mode or event in ("shifted", "brake", "pid"):  # each fallback taken is a change
             reason = REASONS[event][self.modes.mode] if event == "solved" else REASONS[event]
             self.modes.go(mode, k, reason)
 

@@ -200,7 +200,9 @@ class StopsSupervisor(Supervisor):
         tracking step's last solution predicts for that instant (the guess's own state if beyond its
         horizon): a robot on a plant unlike the model drives its motor off the guess's speed.  The guess's
         tail, moved to start at the predicted position, is the solver's initial guess, and
-        ``planner.fresh`` fresh quasi-stable guesses from the same start are others."""
+        ``planner.fresh`` fresh quasi-stable guesses from the same start are others.  The candidates of one
+        handover are alternatives computed side by side (the host's cores): each is ready after its own
+        computation, and the planner is free when the last of them is."""
         s, planner = self.c.settings, self.c.planner
         self._refine_at = None
         guess = self.reference.segments[self.segment][0]
@@ -216,18 +218,20 @@ class StopsSupervisor(Supervisor):
             else:
                 tail.z[REDUCED.position] += (z_start[REDUCED.position] - tail.z[REDUCED.position, 0])[:, None]
             start = self.segment_start + handover
-            candidates = []
-            if s.planner.fresh:  # the leg from fresh guesses first (one set of guesses charged)
+            free = planner.free  # the candidates are alternatives, computed side by side (one core each)
+            candidates = [self._launch(self.segment, t_now, start, z_start, tail)]
+            planner.pop(self.segment)  # a candidate: queued below if it is the best
+            if s.planner.fresh:  # the same leg also from fresh guesses (one set of guesses charged)
                 wall = time.perf_counter()
                 fresh = quasi_stable_guesses(z_start, stop, self.c.params.replace(slope=0.0), s.planner.legs.N,
                                              s.planner.fresh)
                 cost = (time.perf_counter() - wall, s.timing.plan_guess)
                 for start_guess in fresh:
+                    planner.free = free
                     candidates.append(self._launch(self.segment, t_now, start, z_start, start_guess, cost))
-                    planner.pop(self.segment)  # a candidate: queued below if it is the best
+                    planner.pop(self.segment)
                     cost = (0.0, 0.0)
-            candidates.append(self._launch(self.segment, t_now, start, z_start, tail))
-            planner.pop(self.segment)
+            planner.free = max(candidate.ready for candidate in candidates)
             for candidate in candidates:
                 if candidate.plan is None:
                     continue

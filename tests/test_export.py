@@ -149,6 +149,7 @@ def test_the_step_weighs_the_arrival_only_past_the_legs_end():
 
 
 def test_export_c_refuses_what_it_cannot_export(tmp_path, capsys):
+    """Open-loop problems and a firmware of anything but a course of stops are refused in one line."""
     assert main(["export-c", "--out", str(tmp_path / "c"), "--problem", "open_loop"]) == EXIT_USAGE
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "open-loop" in err[0] and "Traceback" not in err[0]
@@ -176,25 +177,33 @@ def test_generated_code_edits_refuse_an_unexpected_source():
 @pytest.mark.skipif(compiler() is None or shutil.which("make") is None,
                     reason="no C compiler or make: the exported step cannot be built here")
 def test_the_exported_step_is_the_nmpcs_step(tmp_path, capsys):
-    """``export-c`` of a circle writes the NMPC's step as C and builds it; the NMPC with that library as its step
-    (``run --controller c``) gives the run of the NMPC itself, key for key (the library's hash added), and a
-    perturbed library (the filtered position moved 1 um) gives another run; a library exported for other
-    settings is refused."""
+    """The step of a circle's NMPC written as C (``export-c``'s ``write_step``) and built: the NMPC with that
+    library as its step (``run --controller c``) gives the run of the NMPC itself, key for key (the library's hash
+    added), and a perturbed library (the filtered position moved 1 um) gives another run; a library exported for
+    other settings is refused.  (A short horizon, to build quickly.)"""
     from rollbot_oc.control.nmpc import NMPCSettings
     from rollbot_oc.control.nmpc.source import FLAGS, LIBRARY, MANIFEST
     from rollbot_oc.core.errors import ConfigError
     from rollbot_oc.scenarios.problem import make_controller
 
+    from rollbot_oc.export.project import build
+    from rollbot_oc.export.step_library import write_step
+
     folder = tmp_path / "step"
-    assert main(["export-c", "--problem", "circle_R065", "--out", str(folder), "--json"]) == 0
-    capsys.readouterr()
-    for name in ("rollbot_step.c", "rollbot_step.h", MANIFEST, "step.mk", "Makefile", LIBRARY):
-        assert (folder / name).is_file(), name
+    folder.mkdir()
     problem = load_bundled("circle_R065").with_duration(3.0)
+    small = NMPCSettings(horizon={"N": 20, "h": 0.15})  # (the bundled NMPC's step: the same, three times longer)
+    manifest = write_step(folder, problem, settings=small)
+    (folder / "Makefile").write_text("CC ?= cc\n-include step.mk\n")
+    assert build(folder, LIBRARY).returncode == 0
+    for name in ("rollbot_step.c", "rollbot_step.h", MANIFEST, "step.mk", LIBRARY):
+        assert (folder / name).is_file(), name
+    assert manifest["N"] == 20 and manifest["problem"] == "circle_R065"
     wall = ("wall_time", "solve_time", "plan_time", "plan_solve_time", "step_time")
 
     def metrics(**options):
-        m = run_problem(problem, make_controller("nmpc", problem, **options), show_progress=False).metrics
+        m = run_problem(problem, make_controller("nmpc", problem, settings=small, **options),
+                        show_progress=False).metrics
         for plan in m.get("plans") or []:
             plan.pop("solve_time", None)
         return {k: v for k, v in m.items() if not k.startswith(wall)}
@@ -220,4 +229,4 @@ def test_the_exported_step_is_the_nmpcs_step(tmp_path, capsys):
     assert changed != nmpc  # the run it drove is another
 
     with pytest.raises(ConfigError, match="exported for another step"):
-        make_controller("nmpc", problem, step_library=folder, settings=NMPCSettings(recovery={"max_failures": 5}))
+        make_controller("nmpc", problem, step_library=folder, settings=small.replace(recovery={"max_failures": 5}))

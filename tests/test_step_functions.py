@@ -97,7 +97,7 @@ def test_one_solve_is_the_tracking_problems_rti_step(period):
     Zr = np.column_stack([to_reduced(x) for x in states])
     Ur = np.array(commands[:N])
     z0 = Zr[:, 0] + 1e-3  # off the reference
-    window = f.window.pack(Zr, Ur, solver.diag, np.zeros(f.window.terms))
+    window = f.window.pack(Zr, Ur, solver.diag, np.zeros(f.window.terms))  # (stops: no mission values)
     w, _lam_w, _lam_g, ok, retried = (a.copy() for a in FastFunction(f.solve)(f.initial_memory, z0, window))
     x, _lam, status, success, _t = solver.solve(z0, Zr, Ur, RollbotParams().vector())
     assert ok[0] == 1 and retried[0] == 0 and success, status

@@ -36,7 +36,7 @@ from rollbot_oc.control.nmpc.estimation import SCALE_RANGE, TiltEstimator
 from rollbot_oc.control.nmpc.modes import StepMode
 from rollbot_oc.control.nmpc.tracking import RTISolver
 from rollbot_oc.model.dynamics import NZ, OMEGA, POS, QUAT, REDUCED, THETA, THETA_DOT
-from rollbot_oc.model.params import PARAM_INDEX, TILT
+from rollbot_oc.model.params import NP, PARAM_INDEX, TILT
 from rollbot_oc.model.rotations import quat_multiply
 
 __all__ = ["HISTORY", "Memory", "WindowLayout", "StepFunctions", "step_functions", "MODE_CODES", "EVENTS", "finite",
@@ -75,27 +75,30 @@ class Memory:
 class WindowLayout:
     """The parts of a ``window`` vector (column-major): ``Zr`` (10, N+1) reference states, ``Ur`` (N,) reference
     accelerations (rad/s^2), ``diag`` the weight of every decision variable (``TrackingWeights.diagonal``:
-    10 (N+1) states by node, then N accelerations) and ``mission`` (terms, N+1) the weights of the mission's
-    residuals at the nodes."""
+    10 (N+1) states by node, then N accelerations), ``mission`` (terms, N+1) the weights of the mission's
+    residuals at the nodes and ``values`` the mission's values (``Mission.tracking_values``, flattened)."""
 
     N: int
     terms: int
+    values: int = 0
 
     @property
     def parts(self):
         N = self.N
-        return (("Zr", NZ * (N + 1)), ("Ur", N), ("diag", NZ * (N + 1) + N), ("mission", self.terms * (N + 1)))
+        return (("Zr", NZ * (N + 1)), ("Ur", N), ("diag", NZ * (N + 1) + N), ("mission", self.terms * (N + 1)),
+                ("values", self.values))
 
     @property
     def size(self) -> int:
         return sum(n for _name, n in self.parts)
 
-    def pack(self, Zr, Ur, diag, mission) -> np.ndarray:
-        """The window vector of its parts (``mission`` (N+1,) or (terms, N+1), broadcast)."""
+    def pack(self, Zr, Ur, diag, mission, values=()) -> np.ndarray:
+        """The window vector of its parts (``mission`` (N+1,) or (terms, N+1), broadcast; ``values``: the
+        mission's values, flattened column-major)."""
         mission = np.asarray(mission, float)
         mission = np.broadcast_to(mission, (self.terms, self.N + 1)) if mission.size else np.zeros(0)
         return np.concatenate([np.asarray(Zr, float).ravel(order="F"), np.ravel(Ur), np.ravel(diag),
-                               mission.ravel(order="F")])
+                               mission.ravel(order="F"), np.asarray(values, float).ravel()])
 
     def split(self, window):
         """The parts of a (symbolic) window vector, shaped."""
@@ -191,26 +194,27 @@ def step_functions(params, settings, weights, mission, dt: float) -> StepFunctio
     solver = RTISolver(params, s.replace(horizon={"compiled": False}), weights, mission=mission)
     N, n, m = s.horizon.N, solver.n_x, solver.route.transcription.g.numel()
     nf = 2 + len(learn)
-    memory = Memory([("seen", 1), ("z_prev", NZ), ("x_f", nf), ("P", nf * nf), ("attitude", 4), ("tracked", 1),
+    memory = Memory([("p", NP), ("seen", 1), ("z_prev", NZ), ("x_f", nf), ("P", nf * nf), ("attitude", 4), ("tracked", 1),
                      ("hist", HISTORY), ("w", n), ("lam_w", n), ("lam_g", m), ("warm", 1), ("current", 1),
                      ("U", N), ("k_solved", 1), ("failures", 1), ("mode", 1), ("until", 1), ("ramped", 1),
                      ("ramp_t0", 1), ("ramp_speed", 1)])
     terms = solver.layout.stage_parameters["mission_weight"]
-    window = WindowLayout(N, terms.stop - terms.start)
-    p_nominal = estimator.p.copy()
+    values = sum(np.size(v) for v in solver._mission_values.values())
+    window = WindowLayout(N, terms.stop - terms.start, values)
     columns = [PARAM_INDEX[name] for name in learn]
 
-    def model_parameters(x_f):
-        p = ca.MX(ca.DM(p_nominal))
-        p[TILT] = x_f[:2]
+    def model_parameters(p, x_f):
+        """The model's parameters: the nominal ``p`` (the memory's) with the estimated tilt and learned factors."""
+        p = ca.vertcat(p[:TILT.start], x_f[:2], p[TILT.stop:])
         for i, c in enumerate(columns):
-            p[c] = p_nominal[c] * x_f[2 + i]
+            p = ca.vertcat(p[:c], p[c] * x_f[2 + i], p[c + 1:])
         return p
 
-    measure = _measure(memory, estimator, learn, columns, p_nominal, model_parameters, f.enabled)
+    measure = _measure(memory, estimator, learn, columns, model_parameters, f.enabled)
     solve = _solve(memory, window, solver, model_parameters, nf)
-    commit = _commit(memory, solver, s, params, dt, every, N)
+    commit = _commit(memory, solver, s, dt, every, N)
     initial = np.zeros(memory.size)
+    initial[memory["p"]] = estimator.p  # the robot the controller believes in: memory, not code
     initial[memory["seen"]] = -2.0  # none yet
     initial[memory["x_f"]] = np.concatenate([estimator.tilt, estimator.scales])
     initial[memory["P"]] = estimator._P.ravel(order="F")
@@ -219,7 +223,7 @@ def step_functions(params, settings, weights, mission, dt: float) -> StepFunctio
     return StepFunctions(measure, solve, commit, memory, window, initial, solver, learn, every, dt)
 
 
-def _measure(memory, estimator, learn, columns, p_nominal, model_parameters, enabled) -> ca.Function:
+def _measure(memory, estimator, learn, columns, model_parameters, enabled) -> ca.Function:
     nf = 2 + len(learn)
     mem, meas, k = ca.MX.sym("mem", memory.size), ca.MX.sym("meas", 1 + 11), ca.MX.sym("k")
 
@@ -238,11 +242,12 @@ def _measure(memory, estimator, learn, columns, p_nominal, model_parameters, ena
                        ca.if_else(part("tracked"), part("attitude"), z_prev[REDUCED.quaternion]),
                        z_prev[REDUCED.quaternion.stop:])
     u_prev = select(hist, k - 1 - part("seen"))  # the command issued at the previous measurement's tick
-    zn, J = one_step(start, u_prev, model_parameters(x_f))
+    p_nominal = part("p")
+    zn, J = one_step(start, u_prev, model_parameters(p_nominal, x_f))
     gain = estimator.attitude_gain
     attitude = _blend(zn[REDUCED.quaternion], z_meas[REDUCED.quaternion], gain) if gain < 1.0 else \
         ca.MX.zeros(4)
-    scale = ca.DM([1.0, 1.0] + [p_nominal[c] for c in columns]).T
+    scale = ca.vertcat(1.0, 1.0, *[p_nominal[c] for c in columns]).T
     H = J * ca.repmat(scale, 3, 1)  # per unit of each factor
     residual = z_meas[REDUCED.omega] - zn[REDUCED.omega]
     P1 = P + ca.diag(ca.DM([estimator.q] * 2 + [0.0] * len(learn)))
@@ -260,8 +265,8 @@ def _measure(memory, estimator, learn, columns, p_nominal, model_parameters, ena
     tracked = ca.logic_and(follows, 1 if gain < 1.0 else 0)  # else the next update starts from its measurement
     attitude = ca.if_else(tracked, attitude, part("attitude"))
     # 2. the delay compensation over the commands issued since the measurement
-    p = model_parameters(x_f)
-    z_d, u_d, p_d = ca.MX.sym("z", NZ), ca.MX.sym("u"), ca.MX.sym("p", p_nominal.size)
+    p = model_parameters(p_nominal, x_f)
+    z_d, u_d, p_d = ca.MX.sym("z", NZ), ca.MX.sym("u"), ca.MX.sym("p", NP)
     active = ca.MX.sym("active")
     predict = ca.Function("predict_if", [z_d, u_d, p_d, active],
                           [ca.if_else(active, one_step(z_d, u_d, p_d)[0], z_d, True)])
@@ -306,13 +311,17 @@ def _solve(memory, window, solver, model_parameters, nf) -> ca.Function:
                     Zr[REDUCED.quaternion.stop:, :])
     node = ca.DM(np.append(np.ones(N), h)).T  # path terms are integrals, the terminal one is not
     diag = parts["diag"]
-    values = {"x0": z0, "p": model_parameters(part("x_f")[:nf]), "reference": Zs,
+    values = {"x0": z0, "p": model_parameters(part("p"), part("x_f")[:nf]), "reference": Zs,
               "accel_reference": ca.horzcat(parts["Ur"].T, 0),
               "state_weight": ca.sqrt(ca.reshape(diag[:NZ * (N + 1)], NZ, N + 1) * ca.repmat(node, NZ, 1)),
               "accel_weight": ca.horzcat(ca.sqrt(diag[NZ * (N + 1):]).T, 0),
               "mission_weight": ca.sqrt(parts["mission"] * ca.repmat(node, window.terms, 1))}
-    values.update({k: ca.MX(ca.DM(np.atleast_2d(v) if np.ndim(v) < 2 else v))
-                   for k, v in solver._mission_values.items()})
+    start = 0
+    for name, value in solver._mission_values.items():  # the mission's values (a circle's centre and radius)
+        shape = np.atleast_2d(value).shape if np.ndim(value) < 2 else np.shape(value)
+        size = int(np.prod(shape))
+        values[name] = ca.reshape(parts["values"][start:start + size], *shape)
+        start += size
     V, ids = placement(values)
     par = V[tr.parameter_vector(ids).astype(int).tolist()]
     guess_values, guess_ids = placement({"Z": ca.horzcat(z0, Zs[:, 1:]), "U": parts["Ur"].T})
@@ -340,7 +349,7 @@ def _solve(memory, window, solver, model_parameters, nf) -> ca.Function:
                        ["mem", "z", "window"], ["w", "lam_w", "lam_g", "ok", "retried"])
 
 
-def _commit(memory, solver, s, params, dt, every, N) -> ca.Function:
+def _commit(memory, solver, s, dt, every, N) -> ca.Function:
     tr = solver.route.transcription
     n, m = tr.w.numel(), tr.g.numel()
     mem, z, k = ca.MX.sym("mem", memory.size), ca.MX.sym("z", NZ), ca.MX.sym("k")
@@ -397,7 +406,7 @@ def _commit(memory, solver, s, params, dt, every, N) -> ca.Function:
     ramp = ca.sign(s0) * ca.fmax(0.0, ca.fabs(s0) - s.recovery.brake_accel * (t_now - t0))
     ramp = ca.if_else(s0 == 0, 0.0, ramp)
     speed = ca.if_else(new_mode == code[StepMode.PID], pid_speed, ramp)
-    limit = params.max_accel  # the plant's motor cannot follow faster either
+    limit = part("p")[PARAM_INDEX["max_accel"]]  # the plant's motor cannot follow faster either
     speed_accel = ca.fmin(ca.fmax((speed - z[REDUCED.theta_dot]) / dt, -limit), limit)
     accel = ca.if_else(off, 0.0, ca.if_else(by_speed, speed_accel, planned))
     updates["hist"] = ca.vertcat(accel, part("hist")[:HISTORY - 1])

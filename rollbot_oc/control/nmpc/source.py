@@ -153,7 +153,7 @@ def load_library(folder, functions) -> tuple[dict, str]:
     Raises
     ------
     ConfigError
-        If the folder holds no manifest or library, was exported for another step (another robot, problem
+        If the folder holds no manifest or library, was exported for another step (another problem
         kind or settings), or the library does not load.
     """
     folder = Path(folder)
@@ -164,7 +164,7 @@ def load_library(folder, functions) -> tuple[dict, str]:
     expected = step_key(functions)
     if key != expected:
         raise ConfigError(f"{folder}: exported for another step (key {key}, this controller's is {expected}: "
-                          "another robot, problem kind or settings)")
+                          "another problem kind or settings; the robot is the memory's, set by the host)")
     path = folder / LIBRARY
     try:
         loaded = {name: ca.external(name, str(path.resolve())) for name in NAMES}

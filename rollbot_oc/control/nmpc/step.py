@@ -134,6 +134,8 @@ class TrackingStep:
         self.solver = f.solver if s.horizon.solver == "rti" else TrackingSolver(params, s, weights, mission=mission)
         self.memory = f.memory
         self.diag = weights.diagonal(s.horizon.N)
+        self._values = np.concatenate([np.ravel(np.atleast_2d(v), order="F")
+                                       for v in f.solver._mission_values.values()] or [np.zeros(0)])
         use_c = s.horizon.compiled if s.horizon.compiled is not None else compiler() is not None
         self.library_sha256 = None
         if library is not None:
@@ -245,7 +247,7 @@ class TrackingStep:
         mission = np.zeros(f.window.terms) if window.mission_weights is None else window.mission_weights
         start = time.perf_counter()
         if s.horizon.solver == "rti":
-            packed = f.window.pack(window.Zr, window.Ur, diag, mission)
+            packed = f.window.pack(window.Zr, window.Ur, diag, mission, self._values)
             w, lam_w, lam_g, ok, retried = (a.copy() for a in self._solve(self.mem, z, packed))
             ok, retried = bool(ok[0]), bool(retried[0])
             modelled = (1 + retried) * s.timing.rti_step

@@ -186,19 +186,18 @@ def test_the_exported_step_is_the_nmpcs_step(tmp_path, capsys):
     from rollbot_oc.core.errors import ConfigError
     from rollbot_oc.scenarios.problem import make_controller
 
-    from rollbot_oc.export.project import build
     from rollbot_oc.export.step_library import write_step
 
     folder = tmp_path / "step"
     folder.mkdir()
-    problem = load_bundled("circle_R065").with_duration(3.0)
-    small = NMPCSettings(horizon={"N": 20, "h": 0.15})  # (the bundled NMPC's step: the same, three times longer)
+    problem = load_bundled("circle_R065").with_duration(1.5)
+    small = NMPCSettings(horizon={"N": 10, "h": 0.3})  # the bundled step's 3 s horizon in 10 intervals: quick to build
     manifest = write_step(folder, problem, settings=small)
     (folder / "Makefile").write_text("CC ?= cc\n-include step.mk\n")
-    assert build(folder, LIBRARY).returncode == 0
+    assert (folder / LIBRARY).is_file()  # the NMPC's own build of this source; make rebuilds it (below)
     for name in ("rollbot_step.c", "rollbot_step.h", MANIFEST, "step.mk", LIBRARY):
         assert (folder / name).is_file(), name
-    assert manifest["N"] == 20 and manifest["problem"] == "circle_R065"
+    assert manifest["N"] == 10 and manifest["problem"] == "circle_R065"
     wall = ("wall_time", "solve_time", "plan_time", "plan_solve_time", "step_time")
 
     def metrics(**options):

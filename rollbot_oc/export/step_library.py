@@ -3,7 +3,8 @@
 ``write_step(folder, problem)`` builds the NMPC of ``problem`` (its mission kind, the robot the controller
 believes in, its settings) and writes its step's generated C (``control.nmpc.source``): ``rollbot_step.c``,
 ``rollbot_step.h``, ``step.json`` (the key of the step, checked when the library is loaded) and
-``step.mk``, the make rule of ``librollbot_step.so`` with the NMPC's own compiler flags.  ``rollbot-oc run
+``step.mk``, the make rule of ``librollbot_step.so`` with the NMPC's own compiler flags; the library itself is
+the one the NMPC compiled from the same source (copied from the codegen cache, where a compiler exists).  ``rollbot-oc run
 PROBLEM --controller c --c-project FOLDER`` runs the NMPC with that library as its step: the same C as
 ``--controller nmpc``, so the two print the same metrics.
 """
@@ -12,8 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rollbot_oc.control.nmpc.source import FLAGS, LIBRARY, MANIFEST, step_source
-from rollbot_oc.core.outputs import atomic_write_text, to_json
+from rollbot_oc.control.nmpc.source import FLAGS, LIBRARY, MANIFEST, cached_library, step_source
+from rollbot_oc.core.outputs import atomic_write_bytes, atomic_write_text, to_json
 from rollbot_oc.scenarios.problem import make_controller
 
 __all__ = ["write_step", "STEP_RULE"]
@@ -50,4 +51,7 @@ def write_step(folder, problem, params=None, settings=None) -> dict:
                 "functions": {name: {"inputs": fun.name_in(), "outputs": fun.name_out()}
                               for name, fun in zip(("measure", "solve", "commit"), (f.measure, f.solve, f.commit))}}
     atomic_write_text(folder / MANIFEST, to_json(manifest) + "\n")
+    built = cached_library(f)  # the library the NMPC compiled from this source (``make`` rebuilds it)
+    if built is not None:
+        atomic_write_bytes(folder / LIBRARY, built.read_bytes())
     return manifest

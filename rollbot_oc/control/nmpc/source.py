@@ -20,9 +20,9 @@ from pathlib import Path
 import casadi as ca
 
 from rollbot_oc.core.errors import ConfigError
-from rollbot_oc.model.codegen import compiled_source
+from rollbot_oc.model.codegen import cache_dir, compiled_source
 
-__all__ = ["StepSource", "step_source", "compiled_step", "load_library", "step_key", "patched", "FLAGS", "NAMES", "LIBRARY",
+__all__ = ["StepSource", "step_source", "compiled_step", "load_library", "step_key", "patched", "cached_library", "FLAGS", "NAMES", "LIBRARY",
            "MANIFEST"]
 
 FLAGS = ("-O1", "-ffp-contract=off")  # no fused multiply-adds, on any target: the last bits agree
@@ -69,6 +69,14 @@ def step_source(functions) -> StepSource:
         source = patched((Path(tmp) / "rollbot_step.c").read_text())
         header = (Path(tmp) / "rollbot_step.h").read_text()
     return StepSource(source, header, step_key(functions))
+
+
+def cached_library(functions) -> Path | None:
+    """The compiled step library in the codegen cache (built if need be: ``compiled_step``), or None."""
+    if compiled_step(functions) is None:
+        return None
+    path = cache_dir() / f"rollbot_step_{step_key(functions)}.so"
+    return path if path.is_file() else None
 
 
 def compiled_step(functions) -> dict | None:

@@ -55,7 +55,7 @@ from rollbot_oc.model.params import RollbotParams
 from rollbot_oc.simulation import plant
 from rollbot_oc.simulation.onboard import OnboardSensing
 from rollbot_oc.simulation.plant import (Event, Sensor, SimulationResult, _check_state, _controller_info, _observe,
-                                         _schedule)
+                                         _run_times, _schedule)
 
 __all__ = ["ContactRecord", "simulate", "simulate_on_floor", "MIN_SUBSTEPS", "EVENT_TOL"]
 
@@ -298,15 +298,8 @@ def simulate_on_floor(x0, duration: float, *, params: RollbotParams, floor: Floo
         raise ConfigError("onboard sensing (IMU) is not simulated on a floor that can slip yet: its sensor model "
                           "assumes rolling; use sensor mode 'mocap'")
     X0 = _check_floor_state(x0, params.R)
-    if not (math.isfinite(duration) and duration > 0):
-        raise ValueError(f"simulate: duration = {duration!r} must be a finite time > 0 s")
-    if not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"simulate: dt = {dt!r} must be a finite period > 0 s")
-    given = [name for name, v in (("controller", controller), ("speed", speed), ("accel", accel)) if v is not None]
-    if len(given) > 1:
-        raise ValueError(f"simulate: give one of controller, speed and accel, not {' and '.join(given)}")
-    steps = max(1, int(round(duration / dt)))
-    times = dt * np.arange(steps + 1)
+    times = _run_times(duration, dt, controller, speed, accel)
+    steps = times.size - 1
     w = np.zeros(NW) if wrench is None else np.asarray(wrench, float).reshape(NW)
     plant = _Plant(params, floor, dt, substeps, w)
     if np.hypot(*plant.slip(X0)) > SLIP_TINY:  # a start that slides

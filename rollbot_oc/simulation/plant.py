@@ -458,6 +458,19 @@ def _first_events(t: np.ndarray, diag: np.ndarray) -> list[Event]:
     return sorted(events, key=lambda e: e.time)
 
 
+def _run_times(duration: float, dt: float, controller, speed, accel) -> np.ndarray:
+    """The sample times of a run (``duration`` s in periods of ``dt`` s), once its arguments are checked: a finite
+    duration and period > 0, and at most one of ``controller``, ``speed`` and ``accel``."""
+    if not (math.isfinite(duration) and duration > 0):
+        raise ValueError(f"simulate: duration = {duration!r} must be a finite time > 0 s")
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"simulate: dt = {dt!r} must be a finite period > 0 s")
+    given = [name for name, v in (("controller", controller), ("speed", speed), ("accel", accel)) if v is not None]
+    if len(given) > 1:
+        raise ValueError(f"simulate: give one of controller, speed and accel, not {' and '.join(given)}")
+    return dt * np.arange(max(1, int(round(duration / dt))) + 1)
+
+
 def simulate(x0, duration: float, *, params: RollbotParams | None = None, controller: Controller | None = None,
              speed=None, accel=None, dt: float = 0.01, substeps: int = 2, method: str = "rk4",
              sensor: Sensor | None = None, wrench=None, stop_on_event: bool = True,
@@ -508,15 +521,8 @@ def simulate(x0, duration: float, *, params: RollbotParams | None = None, contro
     """
     params = params or RollbotParams()
     x0 = _check_state(x0)
-    if not (math.isfinite(duration) and duration > 0):
-        raise ValueError(f"simulate: duration = {duration!r} must be a finite time > 0 s")
-    if not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"simulate: dt = {dt!r} must be a finite period > 0 s")
-    given = [name for name, v in (("controller", controller), ("speed", speed), ("accel", accel)) if v is not None]
-    if len(given) > 1:
-        raise ValueError(f"simulate: give one of controller, speed and accel, not {' and '.join(given)}")
-    steps = max(1, int(round(duration / dt)))
-    times = dt * np.arange(steps + 1)
+    times = _run_times(duration, dt, controller, speed, accel)
+    steps = times.size - 1
     p = params.vector()
     w = np.zeros(NW) if wrench is None else np.asarray(wrench, float).reshape(NW)
     if controller is None:

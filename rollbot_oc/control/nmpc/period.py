@@ -404,7 +404,6 @@ def _commit(memory, solver, s, dt, every, N) -> ca.Function:
                                                                                       ca.logic_not(current))))
     t0, s0 = updates["ramp_t0"], updates["ramp_speed"]
     ramp = ca.sign(s0) * ca.fmax(0.0, ca.fabs(s0) - s.recovery.brake_accel * (t_now - t0))
-    ramp = ca.if_else(s0 == 0, 0.0, ramp)
     speed = ca.if_else(new_mode == code[StepMode.PID], pid_speed, ramp)
     limit = part("p")[PARAM_INDEX["max_accel"]]  # the plant's motor cannot follow faster either
     speed_accel = ca.fmin(ca.fmax((speed - z[REDUCED.theta_dot]) / dt, -limit), limit)

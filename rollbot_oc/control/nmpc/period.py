@@ -151,8 +151,13 @@ def finite(x):
 
 
 def select(vector, index):
-    """``vector[index]`` for a symbolic whole-number ``index``; 0 where it is out of range."""
-    return sum(ca.if_else(index == i, vector[i], 0) for i in range(vector.numel()))
+    """``vector[index]`` for a symbolic whole-number ``index``; 0 where it is out of range, not whole or NaN.
+
+    One indexed read (a loop-free lookup in the generated C), not a comparison per entry: the delay
+    compensation reads the command history 50 times a period.  The index is checked before it is used, so
+    the C never converts a NaN or an out-of-range value to an integer."""
+    valid = ca.logic_and(ca.logic_and(index >= 0, index <= vector.numel() - 1), index == ca.floor(index))
+    return ca.if_else(valid, vector[ca.if_else(valid, index, 0)], 0)
 
 
 def reduced_state(x):

@@ -93,7 +93,7 @@ def n_shape_run(tmp_path_factory, controller: str):
 @pytest.fixture(scope="session")
 def pid_circle_run(tmp_path_factory):
     """``pid_circle_run(name)``: the bundled circle ``name`` under the PID, seed 0, its whole duration (each run
-    once per session when first asked).  Used by test_pid."""
+    once per session when first asked).  Used by test_pid and test_nmpc."""
     from rollbot_oc.scenarios.problem import run_problem
     from rollbot_oc.scenarios.bundled import load_bundled
 

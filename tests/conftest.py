@@ -21,3 +21,13 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 # runs several tests share, computed once per session (tests/shared.py)
 from shared import c_export, n_shape_pid_run, n_shape_runs, pid_circle_run  # noqa: E402,F401
+
+
+# The modules of long closed loops, notebooks and C builds run first: pytest-xdist's work stealing then fills the
+# end of the run with short tests on both workers, instead of one worker finishing a long test alone.
+FIRST = ("test_notebooks.py", "test_export.py", "test_firmware.py", "test_nmpc.py", "test_gates.py", "test_ocp.py")
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(FIRST)))  # stable: the order within a module stays

@@ -215,3 +215,27 @@ def test_a_case_the_cluster_lost_is_an_error_row_and_runs_again(tmp_path, monkey
     assert (again.summary["computed"], again.summary["resumed"]) == (1, 2)
     assert again.table["double"].tolist() == [0, 2, 4]
     assert (tmp_path / "calls.log").read_text().split() == ["0", "2", "1"]
+
+
+def test_time_ratios_to_the_bound_and_to_the_bound_plus_the_dwell():
+    """A run's time over its course's bound, and over the bound plus the stop rule's rest at every stop: 15 s on
+    a course bounded by 10 s with four stops of 0.5 s is 1.5 and 15 / 12 = 1.25; a course without a bound, and
+    bound rows written before the dwell was recorded, give NaN."""
+    from rollbot_oc.campaign.closed_loop import BOUND, ClosedLoopKind, time_ratios
+
+    table = pd.DataFrame([
+        {"course": 0, "controller": BOUND, "status": "succeeded", "completion_time": 10.0, "dwell": 2.0,
+         "stop_errors": None},
+        {"course": 0, "controller": "nmpc", "status": "succeeded", "completion_time": 15.0, "dwell": None,
+         "stop_errors": [0.01, 0.02]},
+        {"course": 1, "controller": BOUND, "status": "failed", "completion_time": None, "dwell": None,
+         "stop_errors": None},
+        {"course": 1, "controller": "nmpc", "status": "succeeded", "completion_time": 20.0, "dwell": None,
+         "stop_errors": [0.03]},
+    ])
+    ratio, with_dwell = time_ratios(table), time_ratios(table, dwell=True)
+    assert ratio[1] == pytest.approx(1.5) and with_dwell[1] == pytest.approx(1.25)
+    assert math.isnan(ratio[0]) and math.isnan(ratio[3]) and math.isnan(with_dwell[3])  # bound row; no bound
+    assert math.isnan(time_ratios(table.drop(columns="dwell"), dwell=True)[1])  # not recorded: not guessed
+    summary = ClosedLoopKind(controllers=("nmpc", BOUND)).summarise(table)["controllers"]["nmpc"]
+    assert summary["time_ratio_median"] == pytest.approx(1.5) and summary["time_ratio_dwell_median"] == pytest.approx(1.25)

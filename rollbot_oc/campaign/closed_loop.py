@@ -24,6 +24,8 @@ summary can divide each run's completion time by it.
 
 from __future__ import annotations
 
+import numpy as np
+
 from rollbot_oc.campaign.case import Outcome, describe, register
 from rollbot_oc.scenarios.courses import CourseRanges, random_course
 from rollbot_oc.core.errors import ConfigError
@@ -133,8 +135,10 @@ class ClosedLoopKind:
     def _bound(problem, drawn: dict) -> Outcome:
         bound = minimum_time_bound(problem.params, problem.initial_state(), problem.mission.stops)
         stops = len(problem.mission.stops)
+        # what the stop rule adds to any run: the time at rest at each stop before it counts as reached
+        dwell = stops * problem.mission.stop_rule.hold
         return Outcome({"completed": True, "completion_time": bound.total, "stops_reached": stops,
-                        "bound_legs": list(bound.legs)}, drawn)
+                        "bound_legs": list(bound.legs), "dwell": dwell}, drawn)
 
     def _judge(self, problem, m: dict, drawn: dict) -> Outcome:
         """The run's metrics and, if it did not succeed, why."""
@@ -168,9 +172,11 @@ class ClosedLoopKind:
 
     def summarise(self, table) -> dict:
         """Per controller (``controllers``): success rate, stop errors (m, every stop reached), completion times
-        (s, successful runs) and their ratio to the course's bound; ``bound``: the bounds planned (s)."""
+        (s, successful runs) and their ratios to the course's bound (``time_ratio``) and to the bound plus the
+        stop rule's dwell (``time_ratio_dwell``: the rest time each stop asks for, which no run can avoid);
+        ``bound``: the bounds planned (s)."""
 
-        ratios = time_ratios(table)
+        ratios, with_dwell = time_ratios(table), time_ratios(table, dwell=True)
         out, bound = {}, {}
         for controller in self.controllers:
             rows = table[table["controller"] == controller]
@@ -184,7 +190,8 @@ class ClosedLoopKind:
                                "success_rate": float(ok.mean()) if len(rows) else None,
                                **quantiles(errors, "stop_error"),
                                **quantiles(rows["completion_time"][ok], "completion_time"),
-                               **quantiles(ratios[rows.index][ok], "time_ratio")}
+                               **quantiles(ratios[rows.index][ok], "time_ratio"),
+                               **quantiles(with_dwell[rows.index][ok], "time_ratio_dwell")}
         return {"controllers": out, **({"bound": bound} if bound else {})}
 
     def figures(self, table, folder) -> list:
@@ -209,10 +216,14 @@ def stop_errors(rows) -> list[float]:
     return [float(e) for errors in rows["stop_errors"] if hasattr(errors, "__len__") for e in errors]
 
 
-def time_ratios(table):
+def time_ratios(table, dwell: bool = False):
     """Each run's completion time over its course's minimum-time bound (a ``pandas.Series`` on the table's
-    index; NaN where the course has no bound, for the bound rows and for runs without a completion time)."""
-    bounds = table[(table["controller"] == BOUND) & (table["status"] == "succeeded")]
-    bound = table["course"].map(bounds.set_index("course")["completion_time"]).astype(float)
-    ratio = table["completion_time"].astype(float) / bound
+    index; NaN where the course has no bound, for the bound rows and for runs without a completion time);
+    ``dwell``: over the bound plus the stop rule's time at rest at every stop (NaN where the bound rows do not
+    record it)."""
+    bounds = table[(table["controller"] == BOUND) & (table["status"] == "succeeded")].set_index("course")
+    total = bounds["completion_time"].astype(float)
+    if dwell:
+        total = total + (bounds["dwell"].astype(float) if "dwell" in bounds else np.nan)
+    ratio = table["completion_time"].astype(float) / table["course"].map(total).astype(float)
     return ratio.where(table["controller"] != BOUND)

@@ -244,13 +244,17 @@ def _write_run(run, out) -> None:
     save_run_figures(run, out)
 
 
-def _nmpc_options(args) -> dict:
-    """The NMPC's settings from the command line (``--realtime``)."""
-    if not args.realtime:
+SETTINGS_PRESETS = ("embedded", "nmpc")  # export-c --settings: NMPCSettings.embedded(), NMPCSettings()
+
+
+def _nmpc_options(args, preset: str = "nmpc") -> dict:
+    """The NMPC's settings from the command line (``--realtime``) over a preset (``SETTINGS_PRESETS``)."""
+    if not args.realtime and preset == "nmpc":
         return {}
     from rollbot_oc.control.nmpc import NMPCSettings
 
-    return {"settings": NMPCSettings(timing={"realtime": True})}
+    settings = NMPCSettings.embedded() if preset == "embedded" else NMPCSettings()
+    return {"settings": settings.replace(timing={"realtime": True}) if args.realtime else settings}
 
 
 def _cmd_run(args) -> int:
@@ -269,9 +273,9 @@ def _cmd_run(args) -> int:
         _emit(args, metrics, lambda: open_loop_text(metrics["runs"], problem.name))
     else:
         controller = args.controller
-        if controller == "c":  # the NMPC, its control step the exported C library
-            controller = make_controller("nmpc", problem, **_nmpc_options(args),
-                                         step_library=_c_project(args, problem))
+        if controller == "c":  # the NMPC, its control step the exported C library (with the export's settings)
+            folder, preset = _c_project(args, problem)
+            controller = make_controller("nmpc", problem, **_nmpc_options(args, preset), step_library=folder)
         run = run_problem(problem, controller, seed=args.seed, show_progress=_show_progress(args),
                           **(_nmpc_options(args) if args.controller == "nmpc" else {}))
         metrics = run.metrics
@@ -288,13 +292,17 @@ def _cmd_export_c(args) -> int:
 
     out = output_folder(args.out)
     problem = load_scenario(args.problem, base=load_params(args.params))
-    result = export_c(out.path, problem, seed=args.seed, show_progress=_show_progress(args), target=args.target)
+    from rollbot_oc.control.nmpc import NMPCSettings
+
+    settings = NMPCSettings.embedded() if args.settings == "embedded" else NMPCSettings()
+    result = export_c(out.path, problem, settings=settings, seed=args.seed, show_progress=_show_progress(args),
+                      target=args.target, preset=args.settings)
     done = None if (out.path / LIBRARY).is_file() else build(out.path, LIBRARY)
     if done is not None and done.returncode != 0:
         lines = (done.stderr or done.stdout).strip().splitlines()
         raise ConfigError(f"export-c {out.path}: make {LIBRARY} failed" + (f": {lines[-1]}" if lines else ""))
     m = result.metrics
-    data = {"folder": str(out.path), "problem": problem.name, "target": args.target,
+    data = {"folder": str(out.path), "problem": problem.name, "target": args.target, "settings": args.settings,
             "step": {k: result.step[k] for k in ("key", "memory", "window", "N")}, "periods": len(result.log),
             "solves": result.solves, "sizes": result.sizes, "completed": m["completed"],
             "completion_time": m.get("completion_time"), "stop_errors": m.get("stop_errors")}
@@ -317,8 +325,8 @@ def _cmd_export_c(args) -> int:
 
 
 def _c_project(args, problem):
-    """The folder of ``--c-project`` for ``run --controller c``: the NMPC's step library built there (export-c
-    builds it; ``make`` again if it is missing)."""
+    """``(folder, preset)`` of ``--c-project`` for ``run --controller c``: the NMPC's step library built there
+    (export-c builds it; ``make`` again if it is missing) and the settings preset it was exported with."""
     from rollbot_oc.control.nmpc.source import LIBRARY
     from rollbot_oc.export.project import build
 
@@ -332,7 +340,13 @@ def _c_project(args, problem):
         if done.returncode != 0:
             lines = (done.stderr or done.stdout).strip().splitlines()
             raise ConfigError(f"--c-project {folder}: make failed" + (f": {lines[-1]}" if lines else ""))
-    return folder
+    import json
+
+    try:
+        preset = json.loads((folder / "step.json").read_text()).get("settings") or "nmpc"
+    except (OSError, ValueError, AttributeError):
+        preset = "nmpc"  # the library's own check says what is wrong with the folder
+    return folder, preset if preset in SETTINGS_PRESETS else "nmpc"
 
 
 def _cmd_compare(args) -> int:
@@ -515,6 +529,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--target", choices=FIRMWARE_TARGETS, default="host", help="host: the C99 project (default); "
                    "cortex-m7: also the firmware for QEMU's mps2-an500 board and make qemu-check (arm-none-eabi-gcc, "
                    "qemu-system-arm; docs/firmware.md)")
+    p.add_argument("--settings", choices=SETTINGS_PRESETS, default="embedded", help="the NMPC's settings: embedded "
+                   "(NMPCSettings.embedded(): 25 intervals of 0.12 s, for a robot's processor; default) or nmpc (those of "
+                   "run --controller nmpc); run --controller c takes the export's")
     p.add_argument("--json", action="store_true", help="print what was exported as JSON (sizes in bytes)")
     p.set_defaults(run=_cmd_export_c)
 

@@ -70,7 +70,7 @@ def qemu_check(folder, periods: int | None = None, jobs: int = 2,
                timeout: float = CHECK_TIMEOUT) -> subprocess.CompletedProcess:
     """Run ``make qemu-check`` in a folder exported with ``--target cortex-m7`` (the completed process).
 
-    ``periods``: the periods replayed (``firmware.mk``'s ``PERIODS`` by default, the first 500; 0 for the whole
+    ``periods``: the periods replayed (``firmware.mk``'s ``PERIODS`` by default, the first 170; 0 for the whole
     recorded run).
 
     Raises

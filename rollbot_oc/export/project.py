@@ -135,7 +135,8 @@ def _data_source(f) -> str:
 
 
 def export_c(out, problem, params=None, settings: NMPCSettings | None = None, seed: int = 0,
-             show_progress: bool | None = False, target: str = "host", duration: float | None = None) -> ExportResult:
+             show_progress: bool | None = False, target: str = "host", duration: float | None = None,
+             preset: str | None = None) -> ExportResult:
     """Export the NMPC's control step for ``problem`` as a C project in the folder ``out`` (module doc).
 
     Parameters
@@ -156,6 +157,8 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
         One of ``firmware.TARGETS``: ``host`` (the C project alone) or ``cortex-m7`` (the firmware build too).
     duration : float, optional
         The recorded run's duration, s (the problem's by default; a course of stops ends when it is done).
+    preset : str, optional
+        The name of the settings' preset, kept in ``step.json`` (``settings``) for ``run --controller c``.
 
     Raises
     ------
@@ -179,7 +182,7 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     run = run_problem(problem, nmpc, seed=seed, show_progress=show_progress, duration=duration)
     nmpc.step.recorder = None
     log = recorder.periods
-    step = write_functions(folder.path, f, problem.name, s)
+    step = write_functions(folder.path, f, problem.name, s, preset)
     work = _work((folder / "rollbot_step.h").read_text())
     sizes = _sizes(f, work)
     atomic_write_text(folder / "rollbot_config.h", _config_header(f, work, s))

@@ -44,16 +44,17 @@ def write_step(folder, problem, params=None, settings=None) -> dict:
     return write_functions(folder, nmpc.step.functions, problem.name, nmpc.settings)
 
 
-def write_functions(folder, f, problem_name: str, settings) -> dict:
+def write_functions(folder, f, problem_name: str, settings, preset: str | None = None) -> dict:
     """``write_step`` for the step Functions ``f`` (``StepFunctions``) of an NMPC with ``settings`` built for the
-    problem ``problem_name``; returns what ``step.json`` holds."""
+    problem ``problem_name`` (``preset``: the name of the settings' preset, if any); returns what ``step.json``
+    holds."""
     source = step_source(f)
     folder = Path(folder)
     atomic_write_text(folder / "rollbot_step.c", source.source)
     atomic_write_text(folder / "rollbot_step.h", source.header)
     atomic_write_text(folder / "step.mk", STEP_RULE)
     manifest = {"key": source.key, "problem": problem_name, "library": LIBRARY, "memory": f.memory.size,
-                "window": f.window.size, "N": settings.horizon.N, "h": settings.horizon.h, "dt": f.dt,
+                "window": f.window.size, "settings": preset, "N": settings.horizon.N, "h": settings.horizon.h, "dt": f.dt,
                 "functions": {name: {"inputs": fun.name_in(), "outputs": fun.name_out()}
                               for name, fun in zip(("measure", "solve", "commit"), (f.measure, f.solve, f.commit))}}
     atomic_write_text(folder / MANIFEST, to_json(manifest) + "\n")

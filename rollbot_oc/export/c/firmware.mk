@@ -9,7 +9,7 @@ ARM_CC ?= arm-none-eabi-gcc
 ARM_NM ?= arm-none-eabi-nm
 QEMU ?= qemu-system-arm
 PYTHON ?= python3
-PERIODS ?= 500
+PERIODS ?= 170
 QEMU_TIMEOUT ?= 1800
 ARM_ARCH = -mcpu=cortex-m7 -mfpu=fpv5-d16 -mfloat-abi=hard -mthumb
 ARM_CFLAGS ?= -std=c99 -O2 -Wall -Werror -ffunction-sections -fdata-sections

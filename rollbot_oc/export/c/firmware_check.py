@@ -185,6 +185,11 @@ def main(argv=None):
           f"{len(solves)} solve instants")
     print(f"max |diff| = {diff:.3e} (commands, rad/s^2, firmware against the host build), {statuses} statuses differ (event, mode)")
     print(f"  against the Python controller's recorded commands: {diff_python:.3e}, {statuses_python} statuses differ")
+    beyond = [i for i, (d, st) in enumerate(host_diffs) if not d <= args.tolerance or st]
+    if beyond:
+        i = beyond[0]
+        print(f"  first difference beyond the tolerance: period {i}" + (f" (a solve instant: {fw[i][7]} instructions)"
+                                                                         if fw[i][5] else ""))
     print(f"  QEMU's instruction clock: {fw_head['per_tick']:.3f} instructions per SysTick tick (calibrated)")
     if solves:
         med, p95, top = percentiles(solves)

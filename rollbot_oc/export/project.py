@@ -158,7 +158,8 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     duration : float, optional
         The recorded run's duration, s (the problem's by default; a course of stops ends when it is done).
     preset : str, optional
-        The name of the settings' preset, kept in ``step.json`` (``settings``) for ``run --controller c``.
+        The name of the settings' preset, kept in ``step.json`` (``settings``) for ``run --controller c``
+        (``embedded`` or ``nmpc`` when the settings are ``NMPCSettings.embedded()`` or the defaults, by default).
 
     Raises
     ------
@@ -175,6 +176,8 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     if s.horizon.solver != "rti":
         raise ConfigError(f"export-c: horizon.solver = {s.horizon.solver!r}; the exported step is the real-time "
                           "iteration: valid is 'rti'")
+    if preset is None:
+        preset = {NMPCSettings.embedded(): "embedded", NMPCSettings(): "nmpc"}.get(s)
     folder = OutputFolder(out)  # checked and created before anything is computed
     nmpc = make_controller("nmpc", problem, params, settings=s)
     f = nmpc.step.functions

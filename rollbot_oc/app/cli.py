@@ -521,7 +521,7 @@ def build_parser() -> argparse.ArgumentParser:
                 "recorded run of the NMPC (make, make check)")
     p.add_argument("--out", metavar="DIR", required=True, help="the C project's folder (created)")
     p.add_argument("--problem", metavar="FILE", default="n_shape", help="scenario file or bundled name of a "
-                   "closed-loop problem (default n_shape); the NMPC's run on it (NMPCSettings.embedded()) is recorded "
+                   "closed-loop problem (default n_shape); the NMPC's run on it (to its end, at most 60 s) is recorded "
                    "for make check")
     _add_params(p)
     p.add_argument("--seed", type=_seed, default=0, metavar="N", help=f"seed of the recorded run's sensor noise, in "

@@ -44,12 +44,14 @@ from rollbot_oc.export.step_library import write_functions
 from rollbot_oc.model.codegen import compiler
 from rollbot_oc.scenarios.problem import make_controller, run_problem
 
-__all__ = ["export_c", "ExportResult", "build", "read_export", "HAND_WRITTEN", "LOG_NAME", "BUILD_TIMEOUT"]
+__all__ = ["export_c", "ExportResult", "build", "read_export", "HAND_WRITTEN", "LOG_NAME", "BUILD_TIMEOUT",
+           "RECORD_SECONDS"]
 
 HAND_WRITTEN = ("rollbot_controller.h", "rollbot_controller.c", "rollbot_replay.h", "rollbot_replay.c", "main.c",
                 "Makefile", "README.md")
 LOG_NAME = "replay_log.bin"
 BUILD_TIMEOUT = 900.0  # s, for make
+RECORD_SECONDS = 60.0  # the recorded run's longest, s: a circle's run never ends (a log of about 60 kB a second)
 
 
 @dataclass
@@ -156,7 +158,8 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     target : str
         One of ``firmware.TARGETS``: ``host`` (the C project alone) or ``cortex-m7`` (the firmware build too).
     duration : float, optional
-        The recorded run's duration, s (the problem's by default; a course of stops ends when it is done).
+        The recorded run's duration, s (the problem's, at most ``RECORD_SECONDS``, by default; a course of stops
+        ends when it is done).
     preset : str, optional
         The name of the settings' preset, kept in ``step.json`` (``settings``) for ``run --controller c``
         (``embedded`` or ``nmpc`` when the settings are ``NMPCSettings.embedded()`` or the defaults, by default).
@@ -182,7 +185,8 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
     nmpc = make_controller("nmpc", problem, params, settings=s)
     f = nmpc.step.functions
     recorder = nmpc.step.recorder = StepRecorder(f.initial_memory, f.memory["mode"])
-    run = run_problem(problem, nmpc, seed=seed, show_progress=show_progress, duration=duration)
+    run = run_problem(problem, nmpc, seed=seed, show_progress=show_progress,
+                      duration=duration if duration is not None else min(problem.duration, RECORD_SECONDS))
     nmpc.step.recorder = None
     log = recorder.periods
     step = write_functions(folder.path, f, problem.name, s, preset)

@@ -227,15 +227,15 @@ class TrackingStep:
         solving = not done and self.modes.mode is not StepMode.OFF and not self.in_fallback(t_now) \
             and (k % self.every == 0 or not self.current)
         n, m = self.memory["w"], self.memory["lam_g"]
-        self._packed = None
-        mem_in = self.mem.copy() if self.recorder is not None else None
+        self._packed = None  # the window solved on, packed (for the recorder)
         if solving:
             window = supervisor.window(z, k)
             if keep is not None:
                 keep(k, window)
-            mem_in = self.mem.copy() if self.recorder is not None else None
+            mem_in = self.mem.copy() if self.recorder is not None else None  # the host's edits made
             w, lam_w, lam_g, ok, late = self._solve_window(window, z, k)
         else:
+            mem_in = self.mem.copy() if self.recorder is not None else None
             w, lam_w, lam_g, ok, late = self.mem[n], self.mem[self.memory["lam_w"]], self.mem[m], 0.0, 0.0
         args = [self.mem, z, k, w, lam_w, lam_g, ok, late, float(solving), float(done),
                 float(supervisor.fallback != "brake")]

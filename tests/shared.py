@@ -106,8 +106,9 @@ def pid_circle_run(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def c_export(tmp_path_factory):
-    """The N-shape's first two legs (40 s at most) exported as C with the firmware build (``export_c``, target
-    ``cortex-m7``) and built for the host (``make all firmware_host``, -j2), once per session in a folder the
+    """The N-shape's first two legs (40 s at most) exported as C with the firmware build (``export_c``: the NMPC's
+    step with ``NMPCSettings.embedded()``, its recorded run; target ``cortex-m7``) and built for the host (``make all
+    firmware_host``, -j2: the hand-written C linked to the step's library), once per session in a folder the
     workers share: ``(problem, result, built)``, ``built`` the build's ``(returncode, stderr)`` or None where there
     is no C compiler or make.  Tests read the folder and build further targets in it, but change none of its
     files.  Used by test_export and test_firmware."""

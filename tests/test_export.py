@@ -1,11 +1,13 @@
-"""The controller on the robot: the exported C project builds without warnings, replays the whole N-shape
-log within 1e-9 of the Python controller, and drives the simulator through ctypes to the same run."""
+"""The controller on the robot: the exported C project (the NMPC's own step) builds without warnings, replays a
+recorded run of the NMPC within 1e-9 (and fails on a perturbed log or library), and the NMPC with the exported
+library as its step runs as the NMPC."""
 
 import hashlib
+import os
 import re
 import shutil
+import struct
 import subprocess
-from dataclasses import replace
 
 import casadi as ca
 import numpy as np
@@ -34,129 +36,124 @@ def test_structured_linearisation_as_a_graph_is_the_numeric_one():
         assert np.allclose(numeric.reshape(symbolic.shape), symbolic.full(), rtol=1e-12, atol=1e-12)
 
 
-def test_the_exported_filter_is_the_numeric_one(n_shape_runs):
-    """The step's symbolic tilt filter (``export.step._estimator_update``) against ``TiltEstimator.update`` on the
-    measured attitude (``attitude_gain`` 1), over a recorded stretch of the N-shape (its first 3 s under the NMPC,
-    from the session's shared run): the same tilt and covariance to 1e-12."""
-    from rollbot_oc.control.nmpc.estimation import TiltEstimator
-    from rollbot_oc.model.dynamics import to_reduced
-    from rollbot_oc.export.step import EMBEDDED_SETTINGS as s, _estimator_update, control_step
-
-    params = RollbotParams()
-    _, (_, run) = n_shape_runs
-    assert run.controller == "nmpc" and run.result.dt == 0.01
-    x, u = run.result.x[:, :301], run.result.command[:300]
-    numeric = TiltEstimator(params, 0.01, s.filter.process_noise, s.filter.gyro_sigma, s.filter.model_error,
-                            attitude_gain=s.filter.attitude_gain)
-    symbolic = _estimator_update(numeric)
-    tilt, P = numeric.tilt.copy(), numeric.P.copy()
-    prior = P.copy()
-    for k in range(u.size):  # the plant's own states: the 1 deg floor is in the residuals
-        z_prev, z_now = to_reduced(x[:, k]), to_reduced(x[:, k + 1])
-        numeric.update(z_prev, float(u[k]), z_now)
-        tilt, P = symbolic(tilt, P, z_prev, float(u[k]), z_now)
-        tilt, P = np.asarray(tilt).ravel(), np.asarray(P)
-        assert np.allclose(tilt, numeric.tilt, atol=1e-12, rtol=0) and np.allclose(P, numeric.P, atol=1e-12, rtol=0)
-    assert np.linalg.norm(tilt) > 0 and np.trace(P) < 0.5 * np.trace(prior)  # it did learn something
-    with pytest.raises(ValueError, match="attitude_gain = 0.05"):
-        control_step(params, s.replace(filter={"attitude_gain": 0.05}))
+SHIM = r"""
+#define _GNU_SOURCE
+#include <dlfcn.h>
+/* rollbot_commit interposed: the step's acceleration moved 1e-6 rad/s^2 */
+typedef int commit(const double** arg, double** res, long long* iw, double* w, int mem);
+int rollbot_commit(const double** arg, double** res, long long* iw, double* w, int mem) {
+    static commit* real;
+    int r;
+    if (!real) real = (commit*)dlsym(RTLD_NEXT, "rollbot_commit");
+    r = real(arg, res, iw, w, mem);
+    if (res[0]) res[0][0] += 1e-6;
+    return r;
+}
+"""
 
 
 @pytest.mark.slow
-def test_export_builds_replays_a_whole_run_and_closes_the_loop_through_c(c_export, tmp_path):
+def test_export_builds_and_replays_the_nmpcs_run(c_export, tmp_path):
     """One test (on the session's one export and host build, ``c_export``, shared with test_firmware): the project
-    is written whole, builds with -std=c99 -O2 -Wall -Werror, ``make check`` replays every period of a whole run
-    (the N-shape's first two legs: a leg ahead planned, a stop left) within 1e-9 (and fails on a log the controller
-    did not give), and the simulator driving the C library gives the same run.  ``benchmarks/bench_export_c.py``
-    runs the whole N-shape."""
-    from rollbot_oc.export.library import CController
-    from rollbot_oc.export.project import build
+    is written whole, around the NMPC's own step (the source and library the NMPC compiled), builds with -std=c99
+    -O2 -Wall -Werror, and ``make check`` replays every period of the NMPC's recorded run (the N-shape's first two
+    legs: a plan taking over, a stop left) within 1e-9, every event and mode the same; a log the step did not give,
+    or a library whose commit is perturbed, fails it."""
+    from rollbot_oc.control.nmpc.source import LIBRARY, cached_library, step_source
+    from rollbot_oc.export.project import build, read_export
+    from rollbot_oc.export.replay import read_replay
 
     problem, result, built = c_export
     folder = result.folder
-    for name in ("rollbot_period.c", "rollbot_period.h", "rollbot_config.h", "rollbot_data.c", "rollbot_controller.h",
-                 "rollbot_controller.c", "main.c", "Makefile", "README.md", "replay_log.txt", "export.json"):
+    for name in ("rollbot_step.c", "rollbot_step.h", "step.json", "step.mk", "rollbot_config.h", "rollbot_data.c",
+                 "rollbot_controller.h", "rollbot_controller.c", "rollbot_replay.h", "rollbot_replay.c", "main.c",
+                 "Makefile", "README.md", "replay_log.bin", "export.json"):
         assert (folder / name).is_file(), name
-    source = (folder / "rollbot_period.c").read_text()
+    source = (folder / "rollbot_step.c").read_text()
+    assert source == step_source(result.functions).source  # the NMPC's own step, as it compiles it
     assert "malloc" not in source and "calloc" not in source  # no heap in the step
     assert source.count("its factors stand") == 1  # qrqp keeps unchanged factors (the replay checks the outputs)
     assert result.metrics["completed"] and len(result.metrics["stop_errors"]) == 2
-    assert result.log.shape[1] == 14 and result.log.shape[0] == int(round(result.metrics["duration"] / 0.01))
-    assert result.sizes["work_bytes"] > 0 and result.sizes["memory_bytes"] == 8 * result.step.memory.size
+    assert len(result.log) == int(round(result.metrics["duration"] / 0.01))
+    assert [p.k for p in result.log] == list(range(len(result.log)))
+    edited = {int(i) for p in result.log for i, _ in p.after}
+    f = result.functions
+    assert {f.memory["warm"].start, f.memory["current"].start} <= edited  # a plan taking over, a leg left
+    assert result.solves == result.metrics["solves"] > 10
+    header, periods = read_replay((folder / "replay_log.bin").read_bytes())
+    assert header == {"periods": len(result.log), "memory": f.memory.size, "window": f.window.size}
+    assert all(np.array_equal(a.values(), b.values(), equal_nan=True) for a, b in zip(periods, result.log))
+    assert read_export(folder)["step"]["key"] == result.step["key"]
+    assert result.sizes["work_bytes"] > 0 and result.sizes["memory_bytes"] == 8 * f.memory.size
     if built is None:
         pytest.skip("no C compiler or make: the exported project cannot be built here")
+    cached = cached_library(f)
+    assert cached is not None and (folder / LIBRARY).read_bytes() == cached.read_bytes()  # not compiled again
 
     returncode, stderr = built
     assert returncode == 0, stderr[-2000:]
     assert "warning" not in stderr.lower()  # -Wall -Werror: a warning would have failed the build
     check = build(folder, "check")
     assert check.returncode == 0, check.stdout[-2000:] + check.stderr[-2000:]
-    found = re.search(r"max \|diff\| = (\S+)", check.stdout)
-    assert found and float(found.group(1)) <= 1e-9
-    assert f"replayed {result.log.shape[0]} periods" in check.stdout  # the whole run's log
+    found = re.search(r"max \|diff\| = (\S+) .*?, (\d+) events or modes differ", check.stdout)
+    assert found and float(found.group(1)) <= 1e-9 and found.group(2) == "0"
+    assert f"replayed {len(result.log)} periods, {result.solves} solve instants" in check.stdout
 
-    # closed loop: the simulator drives the C library (ctypes): the same commands (to 1e-9), the same metrics
-    c = CController(folder, result.step, result.reference, record=True)
-    run = run_problem(problem, c, show_progress=False)
-    assert c.context_bytes >= result.sizes["work_bytes"]
-    assert run.metrics["library_sha256"] == hashlib.sha256((folder / "librollbot_controller.so").read_bytes()).hexdigest()
-    commands = np.array(c.commands)
-    assert commands.shape == result.log[:, 12].shape
-    assert np.max(np.abs(commands - result.log[:, 12])) <= 1e-9
-    assert run.metrics["completed"]
-    assert run.metrics["completion_time"] == pytest.approx(result.metrics["completion_time"], abs=1e-9)
-    assert np.allclose(run.metrics["stop_errors"], result.metrics["stop_errors"], rtol=0, atol=1e-9)
-
-    # a log the controller did not give fails the check (a copy: the shared folder stays as exported)
-    log = tmp_path / "replay_log.txt"
-    lines = (folder / "replay_log.txt").read_text().splitlines()[:200]
-    fields = lines[-1].split()
-    fields[12] = repr(float(fields[12]) + 1e-6)  # a command 1e-6 rad/s^2 off
-    log.write_text("\n".join(lines[:-1] + [" ".join(fields)]) + "\n")
+    # a log the step did not give fails the check (a copy: the shared folder stays as exported)
+    log = tmp_path / "replay_log.bin"
+    data = bytearray((folder / "replay_log.bin").read_bytes())
+    accel_at = len(data) - 5 * 8  # the last period's recorded acceleration
+    data[accel_at:accel_at + 8] = struct.pack("<d", struct.unpack_from("<d", data, accel_at)[0] + 1e-6)
+    log.write_bytes(bytes(data))
     check = subprocess.run([str(folder / "replay"), str(log)], capture_output=True, text=True)
-    assert check.returncode != 0 and "check FAILED" in check.stdout
+    assert check.returncode == 1 and "check FAILED" in check.stdout
+    # and so does a library whose commit gives another acceleration (interposed: the same step otherwise)
+    shim = tmp_path / "shim.so"
+    (tmp_path / "shim.c").write_text(SHIM)
+    subprocess.run([compiler(), "-shared", "-fPIC", str(tmp_path / "shim.c"), "-o", str(shim), "-ldl"], check=True,
+                   capture_output=True, timeout=120)
+    check = subprocess.run([str(folder / "replay"), str(folder / "replay_log.bin")], capture_output=True, text=True,
+                           env={**os.environ, "LD_PRELOAD": str(shim)})
+    assert check.returncode == 1 and "check FAILED" in check.stdout
+    assert 9e-7 < float(re.search(r"max \|diff\| = (\S+)", check.stdout).group(1)) < 1.1e-6
 
 
-def test_the_step_weighs_the_arrival_only_past_the_legs_end():
-    """The step honours the arrival weights (``TrackingWeights.arrival_speed``, ``arrival_omega``) as the NMPC does:
-    its commands are those without them as long as the horizon ends within the first leg, and not once it reaches
-    past the leg's end."""
-    from rollbot_oc.export.project import embedded_controller
-    from rollbot_oc.export.step import EMBEDDED_SETTINGS as s
+def test_the_replay_file_holds_the_periods_as_recorded():
+    """``replay_bytes`` and ``read_replay`` agree on every field; too many edits or a window of another size are
+    refused, and a cut file is reported."""
+    from rollbot_oc.export.replay import MAX_EDITS, Period, read_replay, replay_bytes
 
-    assert s.weights.legs.arrival_speed > 0 and s.weights.legs.arrival_omega > 0
-    n_shape = load_bundled("n_shape")
-    problem = replace(n_shape, mission=n_shape.mission.first(1), duration=3.0)  # one leg planned
-    still = s.replace(weights={"legs": replace(s.weights.legs, arrival_speed=0.0, arrival_omega=0.0)})
-    commands = []
-    for settings in (still, s):
-        controller, step, reference = embedded_controller(problem, settings=settings, record=True)
-        run_problem(problem, controller, show_progress=False)
-        commands.append(np.array(controller.commands))
-    within = int(round((reference.durations[0] - s.horizon.N * s.horizon.h) / problem.dt))  # the horizon within the first leg
-    assert 0 < within < commands[0].size
-    assert np.array_equal(commands[0][:within], commands[1][:within])
-    assert not np.allclose(commands[0], commands[1])
-    # the weights the step blends in are the NMPC's own diagonal with those nodes ended
-    from rollbot_oc.export.step import _RTI
-
-    rti = _RTI(problem.params.replace(slope=0.0), s)
-    ended = np.arange(s.horizon.N + 1) >= 10
-    for name, (track, arrival, _hold) in rti.weights.items():
-        expected = rti.solver._parameters(np.zeros(10), np.zeros((10, s.horizon.N + 1)), np.zeros(s.horizon.N), rti.p_nominal, None,
-                                          s.weights.legs.diagonal(s.horizon.N, ended))[name]
-        assert np.array_equal(np.asarray(track) + (np.asarray(arrival) - np.asarray(track)) * ended, expected), name
+    rng = np.random.default_rng(0)
+    periods = [Period(0, rng.standard_normal(12), np.array([[3.0, 0.5]]), np.zeros((0, 2)), None,
+                      (0.0, 0.0, 1.0, np.nan), (0.25, np.nan, 0.0, 0.0, 0.0)),
+               Period(1, rng.standard_normal(12), np.zeros((0, 2)), np.array([[1.0, 0.0], [2.0, 0.0]]),
+                      rng.standard_normal(7), (1.0, 0.0, 0.0, 2.5), (-0.5, 2.5, 1.0, 4.0, 3.0))]
+    data = replay_bytes(periods, 10, 7)
+    header, back = read_replay(data)
+    assert header == {"periods": 2, "memory": 10, "window": 7}
+    for a, b in zip(periods, back):
+        assert np.array_equal(a.values(), b.values(), equal_nan=True)
+    with pytest.raises(ValueError, match="7 doubles, not 8"):
+        replay_bytes(periods, 10, 8)
+    many = [Period(0, np.zeros(12), np.zeros((MAX_EDITS + 1, 2)))]
+    with pytest.raises(ValueError, match="edits of the memory at once"):
+        replay_bytes(many, 10, 7)
+    with pytest.raises(ValueError, match="ends within period 1"):
+        read_replay(data[:-8])
 
 
 def test_export_c_refuses_what_it_cannot_export(tmp_path, capsys):
-    """Open-loop problems and a firmware of anything but a course of stops are refused in one line."""
+    """Open-loop problems and a step solved by IPOPT (no C) are refused in one line, before anything runs."""
+    from rollbot_oc.control.nmpc import NMPCSettings
+    from rollbot_oc.core.errors import ConfigError
+    from rollbot_oc.export.project import export_c
+
     assert main(["export-c", "--out", str(tmp_path / "c"), "--problem", "open_loop"]) == EXIT_USAGE
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "open-loop" in err[0] and "Traceback" not in err[0]
-    assert main(["export-c", "--out", str(tmp_path / "c"), "--problem", "circle_R035", "--target", "cortex-m7"]) \
-        == EXIT_USAGE
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "course of stops" in err[0]
+    with pytest.raises(ConfigError, match="valid is 'rti'"):
+        export_c(tmp_path / "ipopt", load_bundled("n_shape"), settings=NMPCSettings(horizon={"solver": "ipopt"}))
+    assert not (tmp_path / "ipopt").exists()
     afile = tmp_path / "afile"
     afile.write_text("")
     assert main(["export-c", "--out", str(afile)]) == EXIT_USAGE

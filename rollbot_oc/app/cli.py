@@ -244,13 +244,17 @@ def _write_run(run, out) -> None:
     save_run_figures(run, out)
 
 
-def _nmpc_options(args) -> dict:
-    """The NMPC's settings from the command line (``--realtime``)."""
-    if not args.realtime:
+SETTINGS_PRESETS = ("embedded", "nmpc")  # export-c --settings: NMPCSettings.embedded(), NMPCSettings()
+
+
+def _nmpc_options(args, preset: str = "nmpc") -> dict:
+    """The NMPC's settings from the command line (``--realtime``) over a preset (``SETTINGS_PRESETS``)."""
+    if not args.realtime and preset == "nmpc":
         return {}
     from rollbot_oc.control.nmpc import NMPCSettings
 
-    return {"settings": NMPCSettings(timing={"realtime": True})}
+    settings = NMPCSettings.embedded() if preset == "embedded" else NMPCSettings()
+    return {"settings": settings.replace(timing={"realtime": True}) if args.realtime else settings}
 
 
 def _cmd_run(args) -> int:
@@ -269,13 +273,9 @@ def _cmd_run(args) -> int:
         _emit(args, metrics, lambda: open_loop_text(metrics["runs"], problem.name))
     else:
         controller = args.controller
-        if controller == "embedded":
-            from rollbot_oc.export.project import embedded_controller
-
-            controller = embedded_controller(problem)[0]
-        elif controller == "c":  # the NMPC, its control step the exported C library
-            controller = make_controller("nmpc", problem, **_nmpc_options(args),
-                                         step_library=_c_project(args, problem))
+        if controller == "c":  # the NMPC, its control step the exported C library (with the export's settings)
+            folder, preset = _c_project(args, problem)
+            controller = make_controller("nmpc", problem, **_nmpc_options(args, preset), step_library=folder)
         run = run_problem(problem, controller, seed=args.seed, show_progress=_show_progress(args),
                           **(_nmpc_options(args) if args.controller == "nmpc" else {}))
         metrics = run.metrics
@@ -287,59 +287,46 @@ def _cmd_run(args) -> int:
 
 def _cmd_export_c(args) -> int:
     from rollbot_oc.control.nmpc.source import LIBRARY
-    from rollbot_oc.core.outputs import atomic_write_text
     from rollbot_oc.export.project import build, export_c
-    from rollbot_oc.export.step_library import write_step
     from rollbot_oc.scenarios.bundled import load_scenario
 
     out = output_folder(args.out)
     problem = load_scenario(args.problem, base=load_params(args.params))
-    if not problem.mission.closed_loop:
-        raise ConfigError(f"export-c: {problem.name} is an open-loop problem; the controller is exported for "
-                          "closed-loop problems")
-    mission = problem.mission
-    embedded = bool(mission.stops) and mission.orbit is None and not mission.gates
-    if args.target != "host" and not embedded:
-        raise ConfigError(f"export-c --target {args.target}: the firmware replays the replay project of a course "
-                          f"of stops; {problem.name} is a {problem.kind} problem")
-    if embedded:  # the embedded controller's replay project (a course of stops planned at export time)
-        result = export_c(out.path, problem, seed=args.seed, show_progress=_show_progress(args), target=args.target)
-    else:
-        atomic_write_text(out.path / "Makefile", "CC ?= cc\n\n.PHONY: all\nall: librollbot_step.so\n\n"
-                                                 "-include step.mk\n")
-    step = write_step(out.path, problem)  # the NMPC's step, the same C as --controller nmpc runs
+    from rollbot_oc.control.nmpc import NMPCSettings
+
+    settings = NMPCSettings.embedded() if args.settings == "embedded" else NMPCSettings()
+    result = export_c(out.path, problem, settings=settings, seed=args.seed, show_progress=_show_progress(args),
+                      target=args.target, preset=args.settings)
     done = None if (out.path / LIBRARY).is_file() else build(out.path, LIBRARY)
     if done is not None and done.returncode != 0:
         lines = (done.stderr or done.stdout).strip().splitlines()
         raise ConfigError(f"export-c {out.path}: make {LIBRARY} failed" + (f": {lines[-1]}" if lines else ""))
-    data = {"folder": str(out.path), "problem": problem.name, "target": args.target,
-            "step": {k: step[k] for k in ("key", "memory", "N")}}
-    if embedded:
-        m = result.metrics
-        data.update({"periods": int(result.log.shape[0]), "sizes": result.sizes, "completed": m["completed"],
-                     "completion_time": m["completion_time"], "stop_errors": m["stop_errors"]})
+    m = result.metrics
+    data = {"folder": str(out.path), "problem": problem.name, "target": args.target, "settings": args.settings,
+            "step": {k: result.step[k] for k in ("key", "memory", "window", "N")}, "periods": len(result.log),
+            "solves": result.solves, "sizes": result.sizes, "completed": m["completed"],
+            "completion_time": m.get("completion_time"), "stop_errors": m.get("stop_errors")}
 
     def text() -> str:
+        worst = f", worst stop error {100 * max(m['stop_errors']):.1f} cm" if m.get("stop_errors") else ""
+        run = f"completed in {m['completion_time']:.1f} s" if m["completed"] else "did not complete"
         lines = [f"{problem.name}: exported the NMPC's control step to {out.path} ({LIBRARY}: "
-                 f"rollbot-oc run {problem.name} --controller c --c-project {out.path})"]
-        if embedded:
-            worst = f", worst stop error {100 * max(m['stop_errors']):.1f} cm" if m["stop_errors"] else ""
-            run = f"completed in {m['completion_time']:.1f} s" if m["completed"] else "did not complete"
-            lines += [f"  and the embedded controller (its recorded run {run}{worst})",
-                      f"  periods recorded: {data['periods']}",
-                      f"  memory: {result.sizes['memory_bytes']} bytes, work arrays: {result.sizes['work_bytes']} "
-                      "bytes", f"  build and check: make -C {out.path} check"]
-            if args.target == "cortex-m7":
-                lines.append(f"  firmware (Cortex-M7 on QEMU): make -C {out.path} qemu-check")
+                 f"rollbot-oc run {problem.name} --controller c --c-project {out.path})",
+                 f"  recorded run of the NMPC: {run}{worst}; {len(result.log)} periods, {result.solves} solves "
+                 "(replay_log.bin)",
+                 f"  memory: {result.sizes['memory_bytes']} bytes, work arrays: {result.sizes['work_bytes']} bytes",
+                 f"  build and check: make -C {out.path} check"]
+        if args.target == "cortex-m7":
+            lines.append(f"  firmware (Cortex-M7 on QEMU): make -C {out.path} qemu-check")
         return "\n".join(lines)
 
     _emit(args, data, text)
-    return EXIT_OK if not embedded or m["completed"] else _failed(f"{problem.name}: the recorded run did not complete")
+    return EXIT_OK if m["completed"] else _failed(f"{problem.name}: the recorded run did not complete")
 
 
 def _c_project(args, problem):
-    """The folder of ``--c-project`` for ``run --controller c``: the NMPC's step library built there (export-c
-    builds it; ``make`` again if it is missing)."""
+    """``(folder, preset)`` of ``--c-project`` for ``run --controller c``: the NMPC's step library built there
+    (export-c builds it; ``make`` again if it is missing) and the settings preset it was exported with."""
     from rollbot_oc.control.nmpc.source import LIBRARY
     from rollbot_oc.export.project import build
 
@@ -353,7 +340,13 @@ def _c_project(args, problem):
         if done.returncode != 0:
             lines = (done.stderr or done.stdout).strip().splitlines()
             raise ConfigError(f"--c-project {folder}: make failed" + (f": {lines[-1]}" if lines else ""))
-    return folder
+    import json
+
+    try:
+        preset = json.loads((folder / "step.json").read_text()).get("settings") or "nmpc"
+    except (OSError, ValueError, AttributeError):
+        preset = "nmpc"  # the library's own check says what is wrong with the folder
+    return folder, preset if preset in SETTINGS_PRESETS else "nmpc"
 
 
 def _cmd_compare(args) -> int:
@@ -513,10 +506,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("run", help="run a scenario (file or bundled name) under a controller and print its metrics")
     _add_scenario(p)
-    p.add_argument("--controller", choices=("pid", "nmpc", "embedded", "c"), default="pid",
+    p.add_argument("--controller", choices=("pid", "nmpc", "c"), default="pid",
                    help="pid: the paper's quasi-stable baseline; nmpc: nonlinear MPC; c: the NMPC with its control "
-                   "step the C library of --c-project; embedded: the replay project's controller of a course of "
-                   "stops (legs planned before the run) in Python (default pid)")
+                   "step the C library of --c-project (default pid)")
     p.add_argument("--c-project", metavar="DIR", help="--controller c: a folder written by rollbot-oc export-c for "
                    "this problem (its step library built with make if missing)")
     p.add_argument("--out", metavar="DIR", help="write the trajectory (.npz), metrics (.json), the run's log (.mcap, "
@@ -525,18 +517,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_cmd_run)
 
     p = command("export-c", help="the controller on the robot: export the NMPC's control step (filter, delay "
-                "compensation, RTI, fallbacks) as C99 and build its library (run --controller c); for a course of "
-                "stops also the standalone replay project (make, make check)")
+                "compensation, RTI, fallbacks) as C99 with its library (run --controller c) and the replay of a "
+                "recorded run of the NMPC (make, make check)")
     p.add_argument("--out", metavar="DIR", required=True, help="the C project's folder (created)")
     p.add_argument("--problem", metavar="FILE", default="n_shape", help="scenario file or bundled name of a "
-                   "closed-loop problem (default n_shape); for a course of stops its legs are also planned now and "
-                   "compiled into the replay project, its run recorded for make check")
+                   "closed-loop problem (default n_shape); the NMPC's run on it (to its end, at most 60 s) is recorded "
+                   "for make check")
     _add_params(p)
     p.add_argument("--seed", type=_seed, default=0, metavar="N", help=f"seed of the recorded run's sensor noise, in "
                    f"[0, {MAX_SEED}] (default 0)")
     p.add_argument("--target", choices=FIRMWARE_TARGETS, default="host", help="host: the C99 project (default); "
                    "cortex-m7: also the firmware for QEMU's mps2-an500 board and make qemu-check (arm-none-eabi-gcc, "
                    "qemu-system-arm; docs/firmware.md)")
+    p.add_argument("--settings", choices=SETTINGS_PRESETS, default="embedded", help="the NMPC's settings: embedded "
+                   "(NMPCSettings.embedded(): 25 intervals of 0.12 s, for a robot's processor; default) or nmpc (those of "
+                   "run --controller nmpc); run --controller c takes the export's")
     p.add_argument("--json", action="store_true", help="print what was exported as JSON (sizes in bytes)")
     p.set_defaults(run=_cmd_export_c)
 

@@ -2,7 +2,7 @@
 
 The plant (``simulation.plant.simulate``) calls a ``Controller`` once per control period with an
 ``Observation`` and applies the ``Command`` it returns; every controller of the toolkit (the PID
-baseline, the NMPC, open-loop schedules, the exported C controller through ``export.embedded``)
+baseline, the NMPC, open-loop schedules, the NMPC with its exported C step)
 implements it, and ``ControllerBase`` gives its members neutral defaults.
 """
 

@@ -1,19 +1,20 @@
 """The controller on a Cortex-M7: the firmware build an export adds for ``--target cortex-m7``.
 
-``write_firmware(folder, log)`` writes, beside the C project of ``export.project``:
+``write_firmware(folder)`` writes, beside the C project of ``export.project`` (which holds the recorded run,
+``replay_log.bin``: ``export.replay``):
 
-* ``firmware_replay.bin``: the recorded run's measurements and the Python controller's commands and statuses,
-  one period after the other (the format is in ``firmware_main.c``);
 * ``firmware_main.c``: the replay program, built for the Cortex-M7 (``app.elf``) and for the host
-  (``firmware_host``): ``rollbot_init`` then ``rollbot_step`` on each measurement (the reference windows come
-  from the course compiled in, as on the robot), the commands written back, the instructions of every period
-  and of every call of the generated ``rollbot_period`` counted on QEMU's instruction clock;
+  (``firmware_host``): each period of the recorded run through the step as the board runs it (the host's
+  edits of the memory, ``measure``, ``solve`` on the host's window at a solve instant, ``commit``: the
+  project's ``rollbot_replay.c``), the commands written back, the instructions of every period and of every
+  solve counted on QEMU's instruction clock;
 * ``firmware_startup.c``, ``firmware_mps2_an500.ld``: the vector table, reset and memory of QEMU's
   ``mps2-an500`` board (Cortex-M7; code in flash, data copied to RAM at reset, static context, no heap in
   the step);
 * ``firmware.mk`` (included by the ``Makefile``): ``make firmware`` with ``arm-none-eabi-gcc -mcpu=cortex-m7
   -mfpu=fpv5-d16 -mfloat-abi=hard -ffp-contract=off`` and newlib's semihosting (``--specs=rdimon.specs``),
-  ``make qemu-check`` runs both builds on the first ``PERIODS`` periods and compares them
+  ``make qemu-check`` runs both builds on the first ``PERIODS`` periods and compares them; the step is compiled
+  with the NMPC's own flags (``STEP_FLAGS``, ``step.mk``), the rest with ``-O2``
   (``firmware_check.py``);
 * ``firmware_check.py``: the comparison (standard library only): ``max |diff| = ...`` against the host build,
   ``instructions per solve: median N, p95 N, max N``, RAM and flash from the linker map.
@@ -30,48 +31,30 @@ import subprocess
 from importlib import resources
 from pathlib import Path
 
-import numpy as np
-
 from rollbot_oc.core.errors import ConfigError
 from rollbot_oc.core.outputs import atomic_write_text
 
-__all__ = ["TARGETS", "FIRMWARE_FILES", "REPLAY_NAME", "TOOLS", "write_firmware", "remove_firmware", "replay_bytes",
-           "missing_tools", "qemu_check", "parse_check"]
+__all__ = ["TARGETS", "FIRMWARE_FILES", "TOOLS", "write_firmware", "remove_firmware", "missing_tools", "qemu_check",
+           "parse_check"]
 
 TARGETS = ("host", "cortex-m7")  # what ``export-c --target`` builds for: the host project, and the firmware too
 FIRMWARE_FILES = ("firmware_main.c", "firmware_startup.c", "firmware_mps2_an500.ld", "firmware.mk",
                   "firmware_check.py")
-REPLAY_NAME = "firmware_replay.bin"
 TOOLS = ("arm-none-eabi-gcc", "qemu-system-arm", "make", "python3")
-CHECK_TIMEOUT = 3600.0  # s, for make qemu-check (the build of the generated step takes about a minute)
-MEASUREMENT = 12  # doubles of a measurement (rollbot_measurement)
+CHECK_TIMEOUT = 3600.0  # s, for make qemu-check (the build of the generated step takes about half a minute)
 
 
-def replay_bytes(log: np.ndarray) -> bytes:
-    """The replay file of a recorded log (periods, 14): measurement (12), command, status (format in
-    ``firmware_main.c``)."""
-    log = np.asarray(log, dtype="<f8")
-    if log.ndim != 2 or log.shape[1] != MEASUREMENT + 2:
-        raise ValueError("a replay log has one row of 14 values per period")
-    header = b"RBREPLAY" + np.array([1, log.shape[0], MEASUREMENT, 0], dtype="<u4").tobytes()
-    return header + np.ascontiguousarray(log).tobytes()
-
-
-def write_firmware(folder, log: np.ndarray):
-    """Write the firmware's files and the replay of ``log`` into an exported folder (module doc)."""
+def write_firmware(folder):
+    """Write the firmware's files into an exported folder (module doc)."""
     folder = Path(folder)
     templates = resources.files("rollbot_oc.export") / "c"
     for name in FIRMWARE_FILES:
         atomic_write_text(folder / name, (templates / name).read_text())
-    tmp = folder / (REPLAY_NAME + ".tmp")
-    tmp.write_bytes(replay_bytes(log))
-    os.replace(tmp, folder / REPLAY_NAME)
 
 
 def remove_firmware(folder):
-    """Remove the firmware's files from an exported folder (a host export over a Cortex-M7 one: its replay
-    would be another run's)."""
-    for name in (*FIRMWARE_FILES, REPLAY_NAME):
+    """Remove the firmware's files from an exported folder (a host export over a Cortex-M7 one)."""
+    for name in FIRMWARE_FILES:
         (Path(folder) / name).unlink(missing_ok=True)
 
 
@@ -87,7 +70,7 @@ def qemu_check(folder, periods: int | None = None, jobs: int = 2,
                timeout: float = CHECK_TIMEOUT) -> subprocess.CompletedProcess:
     """Run ``make qemu-check`` in a folder exported with ``--target cortex-m7`` (the completed process).
 
-    ``periods``: the periods replayed (``firmware.mk``'s ``PERIODS`` by default, the first 500; 0 for the whole
+    ``periods``: the periods replayed (``firmware.mk``'s ``PERIODS`` by default, the first 170; 0 for the whole
     recorded run).
 
     Raises

@@ -17,12 +17,13 @@ from rollbot_oc.control.nmpc.source import FLAGS, LIBRARY, MANIFEST, cached_libr
 from rollbot_oc.core.outputs import atomic_write_bytes, atomic_write_text, to_json
 from rollbot_oc.scenarios.problem import make_controller
 
-__all__ = ["write_step", "STEP_RULE"]
+__all__ = ["write_step", "write_functions", "STEP_RULE"]
 
 STEP_RULE = f"""# The NMPC's control step (rollbot_step.c: measure, solve, commit) as the library the Python NMPC loads
-# with --controller c; built with the flags the NMPC compiles the same source with.
+# with --controller c; built with the flags the NMPC compiles the same source with (STEP_FLAGS, on every target).
+STEP_FLAGS = {' '.join(FLAGS)}
 {LIBRARY}: rollbot_step.c rollbot_step.h
-\t$(CC) -shared -fPIC {' '.join(FLAGS)} rollbot_step.c -o $@ -lm
+\t$(CC) -shared -fPIC $(STEP_FLAGS) rollbot_step.c -o $@ -lm
 """
 
 
@@ -40,14 +41,20 @@ def write_step(folder, problem, params=None, settings=None) -> dict:
     settings : NMPCSettings, optional
     """
     nmpc = make_controller("nmpc", problem, params, **({"settings": settings} if settings else {}))
-    f = nmpc.step.functions
+    return write_functions(folder, nmpc.step.functions, problem.name, nmpc.settings)
+
+
+def write_functions(folder, f, problem_name: str, settings, preset: str | None = None) -> dict:
+    """``write_step`` for the step Functions ``f`` (``StepFunctions``) of an NMPC with ``settings`` built for the
+    problem ``problem_name`` (``preset``: the name of the settings' preset, if any); returns what ``step.json``
+    holds."""
     source = step_source(f)
     folder = Path(folder)
     atomic_write_text(folder / "rollbot_step.c", source.source)
     atomic_write_text(folder / "rollbot_step.h", source.header)
     atomic_write_text(folder / "step.mk", STEP_RULE)
-    manifest = {"key": source.key, "problem": problem.name, "library": LIBRARY, "memory": f.memory.size,
-                "window": f.window.size, "N": nmpc.settings.horizon.N, "h": nmpc.settings.horizon.h, "dt": f.dt,
+    manifest = {"key": source.key, "problem": problem_name, "library": LIBRARY, "memory": f.memory.size,
+                "window": f.window.size, "settings": preset, "N": settings.horizon.N, "h": settings.horizon.h, "dt": f.dt,
                 "functions": {name: {"inputs": fun.name_in(), "outputs": fun.name_out()}
                               for name, fun in zip(("measure", "solve", "commit"), (f.measure, f.solve, f.commit))}}
     atomic_write_text(folder / MANIFEST, to_json(manifest) + "\n")

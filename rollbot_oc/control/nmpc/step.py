@@ -19,6 +19,10 @@ step's mode (``StepMode``) says what commands the motor:
 
 With ``horizon.solver = "ipopt"`` the solve stage is IPOPT to convergence (``TrackingSolver``), evaluated in
 Python with the same inputs and outputs; that route has no C.
+
+A ``recorder`` (``TrackingStep.recorder``, None by default) is told, each period, what the step received and
+gave: the memory before and after ``measure`` with its inputs, and the memory, the window solved on and the
+inputs and outputs of ``commit`` (``export.replay.StepRecorder`` keeps them for the C replay of ``export-c``).
 """
 
 from __future__ import annotations
@@ -150,6 +154,7 @@ class TrackingStep:
         self.telemetry = telemetry
         self.radius_map = None  # the PID fallback's (set by the NMPC with its plans)
         self._pid = None
+        self.recorder = None  # told each period's inputs and outputs (module doc)
         self.reset(telemetry)
 
     def reset(self, telemetry: Telemetry) -> None:
@@ -206,7 +211,10 @@ class TrackingStep:
     # -- every period ------------------------------------------------------------------------------
     def measure(self, obs: Observation, k: int):
         """The filter's update and the delay compensation: the reduced state (10,) at tick ``k``."""
-        z, mem = self._measure(self.mem, np.concatenate([[obs.t], obs.state]), k)
+        meas = np.concatenate([[obs.t], obs.state])
+        z, mem = self._measure(self.mem, meas, k)
+        if self.recorder is not None:
+            self.recorder.measured(k, meas, self.mem, mem)
         self.mem = mem.copy()
         return z.copy()
 
@@ -219,12 +227,15 @@ class TrackingStep:
         solving = not done and self.modes.mode is not StepMode.OFF and not self.in_fallback(t_now) \
             and (k % self.every == 0 or not self.current)
         n, m = self.memory["w"], self.memory["lam_g"]
+        self._packed = None  # the window solved on, packed (for the recorder)
         if solving:
             window = supervisor.window(z, k)
             if keep is not None:
                 keep(k, window)
+            mem_in = self.mem.copy() if self.recorder is not None else None  # the host's edits made
             w, lam_w, lam_g, ok, late = self._solve_window(window, z, k)
         else:
+            mem_in = self.mem.copy() if self.recorder is not None else None
             w, lam_w, lam_g, ok, late = self.mem[n], self.mem[self.memory["lam_w"]], self.mem[m], 0.0, 0.0
         args = [self.mem, z, k, w, lam_w, lam_g, ok, late, float(solving), float(done),
                 float(supervisor.fallback != "brake")]
@@ -232,6 +243,12 @@ class TrackingStep:
         if by_speed[0] and MODES[int(mem[self.memory["mode"]][0])] is StepMode.PID:  # the PID's speed, here
             pid = self._pid_speed(obs, z, supervisor.goal, EVENTS[int(event[0])] == "pid")
             accel, speed, by_speed, mem, event = (a.copy() for a in self._commit(*args, pid))
+        else:
+            pid = np.nan
+        if self.recorder is not None:
+            self.recorder.committed(k, mem_in, self._packed, (late, float(solving), float(done),
+                                                              float(supervisor.fallback != "brake"), pid),
+                                    (accel[0], speed[0], by_speed[0], event[0]), mem)
         self.mem = mem
         event = EVENTS[int(event[0])]
         self._record(event, k)
@@ -247,7 +264,7 @@ class TrackingStep:
         mission = np.zeros(f.window.terms) if window.mission_weights is None else window.mission_weights
         start = time.perf_counter()
         if s.horizon.solver == "rti":
-            packed = f.window.pack(window.Zr, window.Ur, diag, mission, self._values)
+            packed = self._packed = f.window.pack(window.Zr, window.Ur, diag, mission, self._values)
             w, lam_w, lam_g, ok, retried = (a.copy() for a in self._solve(self.mem, z, packed))
             ok, retried = bool(ok[0]), bool(retried[0])
             modelled = (1 + retried) * s.timing.rti_step

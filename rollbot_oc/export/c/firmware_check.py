@@ -1,16 +1,16 @@
 """The host side of ``make qemu-check``: the firmware's commands against the host's, its instructions, its memory.
 
 Written by ``rollbot-oc export-c --target cortex-m7`` (the Python standard library only).  Reads the replay
-(``firmware_replay.bin``), the firmware's output under QEMU and the host build's output of the same program
-(formats in ``firmware_main.c``) and the linker map, and prints::
+(``replay_log.bin``, format in ``rollbot_replay.h``), the firmware's output under QEMU and the host build's output
+of the same program (format in ``firmware_main.c``) and the linker map, and prints::
 
     max |diff| = ...                       the firmware's commands against the host build's (rad/s^2)
-    instructions per solve: median N, p95 N, max N    rollbot_period at the solve instants
-    instructions per interval: ...                    rollbot_step from a solve instant to the next
-    instructions per period: ...                      rollbot_step over every period
+    instructions per solve: median N, p95 N, max N    rollbot_period_solve at the solve instants
+    instructions per interval: ...                    the step's calls from a solve instant to the next
+    instructions per period: ...                      the step's calls (measure, solve, commit) every period
     RAM: ... flash: ...                                from the linker map
 
-Exit 0 if the commands agree within the tolerance and every status is the host's, 1 if not, 2 if a file
+Exit 0 if the commands agree within the tolerance and every event and mode is the host's, 1 if not, 2 if a file
 cannot be read.
 """
 
@@ -22,32 +22,57 @@ import subprocess
 import sys
 
 STM32H7_BANK = 512 * 1024  # bytes: an STM32H7's largest RAM bank (AXI SRAM)
-SOLVED, QP_FAILED = 0, 2  # the statuses of a solve instant (rollbot_controller.h)
 ALLOCATORS = {"malloc", "calloc", "realloc", "free", "_malloc_r", "_calloc_r", "_realloc_r", "_free_r", "_sbrk",
               "_sbrk_r"}
 
 
 def read_replay(path):
-    """The Python controller's commands and statuses of the replay file."""
+    """The Python NMPC's step's outputs ``(accel, speed, by_speed, event, mode)`` per period of the replay file."""
     with open(path, "rb") as f:
         data = f.read()
     if data[:8] != b"RBREPLAY":
         raise ValueError(f"{path}: not a replay file")
-    version, periods, size, _ = struct.unpack_from("<4I", data, 8)
-    rows = [struct.unpack_from(f"<{size + 2}d", data, 24 + 8 * (size + 2) * i) for i in range(periods)]
-    return [r[size] for r in rows], [int(r[size + 1]) for r in rows]
+    version, periods, _memory, window = struct.unpack_from("<4I", data, 8)
+    if version != 2:
+        raise ValueError(f"{path}: replay file version {version}, not 2")
+    at, rows = 24, []
+
+    def take(n):
+        nonlocal at
+        values = struct.unpack_from(f"<{n}d", data, at)
+        at += 8 * n
+        return values
+
+    for _ in range(periods):
+        take(1 + 12)
+        for _edits in range(2):
+            take(2 * int(take(1)[0]))
+        if take(1)[0]:
+            take(window)
+        rows.append(take(9)[4:])
+    return rows
 
 
 def read_output(path):
-    """``(header, rows)`` of a replay program's output: rows of (command, status, calls, step instructions,
-    rollbot_period instructions)."""
+    """``(header, rows)`` of a replay program's output: rows of (accel, speed, by_speed, event, mode, solving,
+    the period's instructions, its solve's instructions)."""
     with open(path, "rb") as f:
         data = f.read()
-    if data[:8] != b"RBFWOUT1":
+    if data[:8] != b"RBFWOUT2":
         raise ValueError(f"{path}: not an output of the firmware's replay")
     version, periods, context, stack, per_tick = struct.unpack_from("<4Id", data, 8)
-    rows = [struct.unpack_from("<diIQQ", data, 32 + 32 * i) for i in range(periods)]
+    rows = [struct.unpack_from("<ddiiiIQQ", data, 32 + 48 * i) for i in range(periods)]
     return {"periods": periods, "context": context, "stack": stack, "per_tick": per_tick}, rows
+
+
+def differ(a, b, tolerance):
+    """``(|diff|, status differs)`` of two commands (accel, speed, by_speed, event, mode, ...)."""
+    d = abs(a[0] - b[0])
+    if not (math.isnan(a[1]) and math.isnan(b[1])):
+        d = max(d, abs(a[1] - b[1]))
+    if math.isnan(d):
+        d = math.inf
+    return d, any(int(x) != int(y) for x, y in zip(a[2:5], b[2:5]))
 
 
 def percentiles(values):
@@ -140,7 +165,7 @@ def main(argv=None):
     parser.add_argument("--tolerance", type=float, default=1e-9)
     args = parser.parse_args(argv)
     try:
-        python_cmd, python_status = read_replay(args.replay)
+        python = read_replay(args.replay)
         fw_head, fw = read_output(args.firmware)
         host_head, host = read_output(args.host)
     except (OSError, ValueError, struct.error) as exc:
@@ -150,33 +175,38 @@ def main(argv=None):
     if n != host_head["periods"] or n == 0:
         print(f"firmware_check: the firmware replayed {n} periods, the host {host_head['periods']}", file=sys.stderr)
         return 2
-    diff = max(abs(a[0] - b[0]) if math.isfinite(a[0]) else math.inf for a, b in zip(fw, host))
-    statuses = sum(a[1] != b[1] for a, b in zip(fw, host))
-    diff_python = max(abs(a[0] - c) for a, c in zip(fw, python_cmd))
-    statuses_python = sum(a[1] != s for a, s in zip(fw, python_status))
-    solves = [r[4] for r in fw if r[1] in (SOLVED, QP_FAILED)]
-    steps = [r[3] for r in fw]
+    host_diffs = [differ(a, b, args.tolerance) for a, b in zip(fw, host)]
+    python_diffs = [differ(a, b, args.tolerance) for a, b in zip(fw, python)]
+    diff, statuses = max(d for d, _ in host_diffs), sum(s for _, s in host_diffs)
+    diff_python, statuses_python = max(d for d, _ in python_diffs), sum(s for _, s in python_diffs)
+    solves = [r[7] for r in fw if r[5]]
+    steps = [r[6] for r in fw]
     print(f"replayed {n} periods of {0.01 * n:.2f} s on the Cortex-M7 (QEMU mps2-an500, -icount shift=0), "
           f"{len(solves)} solve instants")
-    print(f"max |diff| = {diff:.3e} (commands, rad/s^2, firmware against the host build), {statuses} statuses differ")
+    print(f"max |diff| = {diff:.3e} (commands, rad/s^2, firmware against the host build), {statuses} statuses differ (event, mode)")
     print(f"  against the Python controller's recorded commands: {diff_python:.3e}, {statuses_python} statuses differ")
+    beyond = [i for i, (d, st) in enumerate(host_diffs) if not d <= args.tolerance or st]
+    if beyond:
+        i = beyond[0]
+        print(f"  first difference beyond the tolerance: period {i}" + (f" (a solve instant: {fw[i][7]} instructions)"
+                                                                         if fw[i][5] else ""))
     print(f"  QEMU's instruction clock: {fw_head['per_tick']:.3f} instructions per SysTick tick (calibrated)")
     if solves:
         med, p95, top = percentiles(solves)
         print(f"instructions per solve: median {med}, p95 {p95}, max {top}")
     else:
         print("instructions per solve: none (no solve instant replayed)")
-    instants = [i for i, r in enumerate(fw) if r[1] in (SOLVED, QP_FAILED)]
+    instants = [i for i, r in enumerate(fw) if r[5]]
     intervals = [sum(steps[a:b]) for a, b in zip(instants[:-1], instants[1:])]
     if intervals:
         med, p95, top = percentiles(intervals)
-        print(f"instructions per interval: median {med}, p95 {p95}, max {top} (rollbot_step, every period from a "
+        print(f"instructions per interval: median {med}, p95 {p95}, max {top} (the step's calls, every period from a "
               f"solve instant to the next, {len(intervals)} intervals)")
     else:
         print("instructions per interval: none (fewer than two solve instants replayed)")
     med, p95, top = percentiles(steps)
-    print(f"instructions per period: median {med}, p95 {p95}, max {top}, mean {sum(steps) / n:.0f} (rollbot_step, "
-          "every period)")
+    print(f"instructions per period: median {med}, p95 {p95}, max {top}, mean {sum(steps) / n:.0f} (the step's calls: "
+          "measure, solve at a solve instant, commit)")
     try:
         total, step = memory(args.map, args.objects)
     except (OSError, ValueError) as exc:
@@ -191,7 +221,7 @@ def main(argv=None):
           f"{total['ram']} bytes of .data and .bss, with {total['heap']} of heap and {total['stack']} of stack "
           "reserved")
     print(f"flash: step {flash} bytes: code {step['code']}, constants {step['constants']} (the generated step, its "
-          f"course table and the libm it calls), initial data {step['data']}; whole image {total['flash']} bytes")
+          f"API, the initial memory and the libm it calls), initial data {step['data']}; whole image {total['flash']} bytes")
     if args.objects:
         try:
             found = allocators(args.nm, args.objects)

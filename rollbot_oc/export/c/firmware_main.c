@@ -1,39 +1,37 @@
-/* firmware_main.c - the controller's replay on the robot's processor: recorded measurements in, commands out.
+/* firmware_main.c - the step's replay on the robot's processor: the recorded run in, commands out.
  *
  * Usage: firmware REPLAY OUT [PERIODS]
  * Written by hand (rollbot_oc/export/c) for `rollbot-oc export-c --target cortex-m7`; built twice from this one
  * source: for the Cortex-M7 (app.elf, run by QEMU, files through semihosting) and for the host
  * (firmware_host), so that `make qemu-check` compares the two builds of the same program.
  *
- * REPLAY (firmware_replay.bin, written at export, little-endian): "RBREPLAY", then uint32 version (1),
- * periods, doubles per measurement (12) and 0; then per period 14 doubles: the measurement (rollbot_measurement:
- * t, position 2, quaternion 4, omega 3, theta, theta_dot), the Python controller's command and its status.
- * The measurements are those of the export's recorded closed-loop run; the reference windows are not in the
- * file: rollbot_step computes them from the course compiled in (rollbot_data.c), as on the robot.
+ * REPLAY: replay_log.bin (format in rollbot_replay.h): per period what the board received from the host (the
+ * measurement, the host's edits of the step's memory, the reference window at a solve instant, the inputs of
+ * commit) and what the Python NMPC's step gave.  Each period runs through the step as on the board
+ * (rollbot_replay_period_run: edits, rollbot_period_measure, rollbot_period_solve at a solve instant,
+ * rollbot_period_commit).
  *
- * OUT (little-endian): "RBFWOUT1", then uint32 version (1), periods, context bytes, the deepest stack a call of
- * rollbot_step reached, in bytes (from the caller's stack pointer; painted before each call; 0 on the host),
- * double instructions per SysTick tick (0 on the host); then per period: double command (rad/s^2),
- * int32 status, uint32 calls of rollbot_period, uint64 instructions of rollbot_step, uint64 instructions in
- * rollbot_period (0 on the host).
+ * OUT (little-endian): "RBFWOUT2", then uint32 version (2), periods, context bytes, the deepest stack a period's
+ * calls reached, in bytes (from the caller's stack pointer; painted before each period; 0 on the host), double
+ * instructions per SysTick tick (0 on the host); then per period (48 bytes): double accel (rad/s^2), double speed
+ * (rad/s, NaN unless by speed), int32 by_speed, int32 event, int32 mode, uint32 solving, uint64 instructions of
+ * the period's calls of the step, uint64 instructions of its solve (0 on the host).
  *
  * Instructions: QEMU's Cortex-M has no cycle counter; with -icount shift=0 its virtual clock advances 1 ns per
  * instruction and SysTick, on the processor clock, counts it at a fixed ratio, calibrated at start on a loop of
- * known length.  rollbot_period is timed by the linker's --wrap (every call of the generated step, from
- * rollbot_step).  The step's heap use is none: rollbot_context is static here.
+ * known length.  The step's heap use is none: rollbot_context is static here.
  * PERIODS: replay the first PERIODS periods only (0 or absent: all).  Exit 0, or 2 if a file cannot be read or
- * written, or 1 if rollbot_step fails.
+ * written, or 1 if the step fails.
  */
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "rollbot_controller.h"
-
-#define REPLAY_DOUBLES 14
+#include "rollbot_replay.h"
 
 static rollbot_context ctx; /* static: the step uses no heap */
+static rollbot_replay_period replay;
 
 #if defined(__arm__)
 #define SYST_CSR (*(volatile uint32_t*)0xE000E010u)
@@ -113,53 +111,39 @@ static uint32_t stack_used(const uint32_t* below, const uint32_t* from) {
 }
 #endif
 
-static uint64_t period_ticks;
-static uint32_t period_calls;
+static double clock_ticks(void) { return (double)ticks(); }
 
-/* The generated step's signature (a compile error if rollbot_period.h declares another one). */
-typedef int period_function(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-period_function rollbot_period, __real_rollbot_period, __wrap_rollbot_period;
-
-/* Every call of the generated step (the linker's --wrap=rollbot_period), timed. */
-int __wrap_rollbot_period(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-    uint64_t start = ticks();
-    int result = __real_rollbot_period(arg, res, iw, w, mem);
-    period_ticks += ticks() - start;
-    ++period_calls;
-    return result;
-}
-
-typedef struct { /* one period of OUT: 32 bytes, no padding */
+typedef struct { /* one period of OUT: 48 bytes, no padding */
     double accel;
-    int32_t status;
-    uint32_t calls;
+    double speed;
+    int32_t by_speed;
+    int32_t event;
+    int32_t mode;
+    uint32_t solving;
     uint64_t step_instructions;
-    uint64_t period_instructions;
+    uint64_t solve_instructions;
 } out_row;
 
-typedef char out_row_is_32_bytes[sizeof(out_row) == 32 ? 1 : -1];
-typedef char measurement_is_12_doubles[sizeof(rollbot_measurement) == 12 * sizeof(double) ? 1 : -1];
+typedef char out_row_is_48_bytes[sizeof(out_row) == 48 ? 1 : -1];
 
 static int write_u32(FILE* f, uint32_t v) { return fwrite(&v, sizeof v, 1, f) == 1; }
 
 int main(int argc, char** argv) {
     FILE *in, *out;
-    char magic[8];
-    uint32_t header[4], period, periods, stack = 0;
-    double row[REPLAY_DOUBLES], per_tick;
+    uint32_t period, periods, stack = 0;
+    long recorded;
+    double per_tick;
     rollbot_command command;
     out_row o;
     if (argc < 3) {
         fprintf(stderr, "firmware: usage: firmware REPLAY OUT [PERIODS]\n");
         return 2;
     }
-    if ((in = fopen(argv[1], "rb")) == 0 || fread(magic, 1, 8, in) != 8 || memcmp(magic, "RBREPLAY", 8) != 0 ||
-        fread(header, sizeof(uint32_t), 4, in) != 4 || header[0] != 1 || header[2] != 12) {
-        fprintf(stderr, "firmware: %s: not a replay file of this controller (version 1, 12 doubles a measurement)\n",
-                argv[1]);
+    if ((in = fopen(argv[1], "rb")) == 0 || (recorded = rollbot_replay_open(in, argv[1])) < 0) {
+        fprintf(stderr, "firmware: cannot read the replay %s\n", argv[1]);
         return 2;
     }
-    periods = header[1];
+    periods = (uint32_t)recorded;
     if (argc > 3 && atol(argv[3]) > 0 && (uint32_t)atol(argv[3]) < periods) periods = (uint32_t)atol(argv[3]);
     if ((out = fopen(argv[2], "wb")) == 0) {
         fprintf(stderr, "firmware: cannot write %s\n", argv[2]);
@@ -167,40 +151,38 @@ int main(int argc, char** argv) {
     }
     ticks_start();
     per_tick = calibrate();
-    fwrite("RBFWOUT1", 1, 8, out);
-    write_u32(out, 1);
+    fwrite("RBFWOUT2", 1, 8, out);
+    write_u32(out, 2);
     write_u32(out, periods);
     write_u32(out, (uint32_t)rollbot_context_bytes());
     write_u32(out, 0); /* the stack peak, written at the end */
     fwrite(&per_tick, sizeof per_tick, 1, out);
     rollbot_init(&ctx);
     for (period = 0; period < periods; ++period) {
-        rollbot_measurement m;
-        uint64_t start;
-        if (fread(row, sizeof(double), REPLAY_DOUBLES, in) != REPLAY_DOUBLES) {
+        double total, solve;
+        if (rollbot_replay_read(in, &replay)) {
             fprintf(stderr, "firmware: %s: ends at period %lu\n", argv[1], (unsigned long)period);
             return 2;
         }
-        memcpy(&m, row, sizeof m);
         {
             const uint32_t* sp = stack_pointer();
             uint32_t used;
             paint_stack(sp - 16);
-            period_ticks = 0;
-            period_calls = 0;
-            start = ticks();
-            if (rollbot_step(&ctx, &m, &command)) {
-                fprintf(stderr, "firmware: rollbot_step failed at period %lu\n", (unsigned long)period);
+            if (rollbot_replay_period_run(&ctx, &replay, &command, clock_ticks, &total, &solve)) {
+                fprintf(stderr, "firmware: the step failed at period %lu\n", (unsigned long)period);
                 return 1;
             }
-            o.step_instructions = (uint64_t)((double)(ticks() - start) * per_tick + 0.5);
             used = stack_used(sp - 16, sp);
             if (used > stack) stack = used;
         }
-        o.period_instructions = (uint64_t)((double)period_ticks * per_tick + 0.5);
+        o.step_instructions = (uint64_t)(total * per_tick + 0.5);
+        o.solve_instructions = (uint64_t)(solve * per_tick + 0.5);
         o.accel = command.accel;
-        o.status = command.status;
-        o.calls = period_calls;
+        o.speed = command.speed;
+        o.by_speed = command.by_speed;
+        o.event = command.event;
+        o.mode = command.mode;
+        o.solving = (uint32_t)replay.solving;
         if (fwrite(&o, sizeof o, 1, out) != 1) {
             fprintf(stderr, "firmware: cannot write %s\n", argv[2]);
             return 2;

@@ -1,12 +1,13 @@
-/* main.c - replay a recorded log through the controller and compare with the Python controller's commands.
+/* main.c - replay a recorded run through the step and compare with the Python NMPC's step (make check).
  *
  * Usage: replay LOG [TOLERANCE]
- * LOG: one line per control period: the measurement (t, position 2, quaternion 4, omega 3, theta,
- * theta_dot), the command the Python embedded controller gave (rad/s^2) and its status.
- * Prints the largest difference of the commands and the step's time (median, p95, max, over all periods
- * and over the solve instants); exits 1 if the difference exceeds TOLERANCE (default 1e-9) or a status
- * differs, 2 if the log cannot be read.  A host program: it reads a file and keeps its timings on the
- * heap; the step itself (rollbot_step) uses only the static context.
+ * LOG: replay_log.bin (format in rollbot_replay.h): per control period what the board received from the host
+ * (the measurement, the host's edits of the memory, the reference window at a solve instant, the inputs of
+ * commit) and what the Python NMPC's step gave.  Runs each period through the step as the board would
+ * (rollbot_replay_period_run) and prints the largest difference of the commands and the step's time (median,
+ * p95, max over all periods and over the solve instants); exits 1 if a command differs by more than TOLERANCE
+ * (default 1e-9, rad/s^2 or rad/s) or an event or mode differs, 2 if the log cannot be read.  A host program:
+ * it keeps its timings on the heap; the step itself uses only the static context.
  */
 #define _POSIX_C_SOURCE 199309L
 #include <math.h>
@@ -14,9 +15,16 @@
 #include <stdlib.h>
 #include <time.h>
 
-#include "rollbot_controller.h"
+#include "rollbot_replay.h"
 
 static rollbot_context ctx;  /* static: no heap in the step */
+static rollbot_replay_period period;
+
+static double seconds(void) {
+    struct timespec now;
+    clock_gettime(CLOCK_MONOTONIC, &now);
+    return (double)now.tv_sec + 1e-9 * (double)now.tv_nsec;
+}
 
 static int compare(const void* a, const void* b) {
     double x = *(const double*)a, y = *(const double*)b;
@@ -35,62 +43,39 @@ static void summary(const char* what, double* t, long n) {
 
 int main(int argc, char** argv) {
     FILE* log;
-    double row[14], diff = 0.0, *all = 0, *solves = 0;
-    long steps = 0, n_solves = 0, capacity = 0, mismatched = 0;
+    double diff = 0.0, *all, *solves, total, solve;
+    long periods, i, n_solves = 0, mismatched = 0;
     double tolerance = argc > 2 ? atof(argv[2]) : 1e-9;
-    rollbot_measurement m;
     rollbot_command command;
-    if (argc < 2 || (log = fopen(argv[1], "r")) == 0) {
+    if (argc < 2 || (log = fopen(argv[1], "rb")) == 0) {
         fprintf(stderr, "replay: cannot read the log %s\n", argc < 2 ? "(none given)" : argv[1]);
         return 2;
     }
+    if ((periods = rollbot_replay_open(log, argv[1])) < 0) return 2;
+    all = malloc((size_t)(periods + 1) * sizeof(double));
+    solves = malloc((size_t)(periods + 1) * sizeof(double));
+    if (all == 0 || solves == 0) return 2;
     rollbot_init(&ctx);
-    for (;;) {
-        int i, got = 0;
-        struct timespec start, stop;
-        double seconds;
-        for (i = 0; i < 14; ++i) got += fscanf(log, "%lf", &row[i]) == 1;
-        if (got == 0) break;
-        if (got != 14) {
-            fprintf(stderr, "replay: %s: line %ld has %d numbers, not 14\n", argv[1], steps + 1, got);
-            return 2;
-        }
-        m.t = row[0];
-        m.position[0] = row[1]; m.position[1] = row[2];
-        for (i = 0; i < 4; ++i) m.quaternion[i] = row[3 + i];
-        for (i = 0; i < 3; ++i) m.omega[i] = row[7 + i];
-        m.theta = row[10];
-        m.theta_dot = row[11];
-        clock_gettime(CLOCK_MONOTONIC, &start);
-        if (rollbot_step(&ctx, &m, &command)) {
-            fprintf(stderr, "replay: rollbot_step failed at period %ld\n", steps);
+    for (i = 0; i < periods; ++i) {
+        if (rollbot_replay_read(log, &period)) return 2;
+        if (rollbot_replay_period_run(&ctx, &period, &command, seconds, &total, &solve)) {
+            fprintf(stderr, "replay: the step failed at period %ld\n", i);
             return 1;
         }
-        clock_gettime(CLOCK_MONOTONIC, &stop);
-        seconds = (double)(stop.tv_sec - start.tv_sec) + 1e-9 * (double)(stop.tv_nsec - start.tv_nsec);
-        if (steps >= capacity) {
-            capacity = capacity ? 2 * capacity : 4096;
-            all = realloc(all, (size_t)capacity * sizeof(double));
-            solves = realloc(solves, (size_t)capacity * sizeof(double));
-            if (all == 0 || solves == 0) return 2;
-        }
-        all[steps] = seconds;
-        if (command.status == ROLLBOT_STATUS_SOLVED || command.status == ROLLBOT_STATUS_QP_FAILED)
-            solves[n_solves++] = seconds;
-        if (fabs(command.accel - row[12]) > diff || command.accel != command.accel) diff = fabs(command.accel - row[12]);
-        mismatched += command.status != (int)row[13];
-        ++steps;
+        all[i] = total;
+        if (period.solving) solves[n_solves++] = solve;
+        mismatched += rollbot_replay_differs(&command, &period.expected, INFINITY, &diff);
     }
     fclose(log);
-    printf("replayed %ld periods, %ld solve instants\n", steps, n_solves);
-    printf("max |diff| = %.3e (commands, rad/s^2), %ld statuses differ\n", diff, mismatched);
-    summary("all periods", all, steps);
-    summary("solve instants", solves, n_solves);
+    printf("replayed %ld periods, %ld solve instants\n", periods, n_solves);
+    printf("max |diff| = %.3e (commands, rad/s^2), %ld events or modes differ\n", diff, mismatched);
+    summary("all periods", all, periods);
+    summary("solves", solves, n_solves);
     printf("context: %lu bytes (work arrays %lu bytes)\n", rollbot_context_bytes(),
-           (unsigned long)(sizeof(ctx.arg) + sizeof(ctx.res) + sizeof(ctx.iw) + sizeof(ctx.w)));
+           (unsigned long)(sizeof(ctx.arg) + sizeof(ctx.res) + sizeof(ctx.iw) + sizeof(ctx.work)));
     free(all);
     free(solves);
-    if (steps == 0 || !(diff <= tolerance) || mismatched) {
+    if (periods == 0 || !(diff <= tolerance) || mismatched) {
         printf("check FAILED: tolerance %.1e\n", tolerance);
         return 1;
     }

@@ -9,54 +9,76 @@ unsigned long rollbot_context_bytes(void) { return (unsigned long)sizeof(rollbot
 
 int rollbot_init(rollbot_context* ctx) {
     memcpy(ctx->mem, rollbot_initial_memory, sizeof(ctx->mem));
-    ctx->reference = &rollbot_bundled_reference;
+    ctx->solved = 0;
     return 0;
 }
 
-int rollbot_set_reference(rollbot_context* ctx, const rollbot_reference* reference) {
-    if (reference == 0 || reference->legs < 1 || reference->columns < reference->legs) return -1;
-    ctx->reference = reference;
+int rollbot_set_memory(rollbot_context* ctx, long index, double value) {
+    if (index < 0 || index >= ROLLBOT_MEM_SIZE) return -1;
+    ctx->mem[index] = value;
     return 0;
 }
 
-/* Leg `leg` from its column `local` on, its last column repeated: states (10, N+1), accelerations (N),
- * the stop (2), the leg's duration and 1 if it is the last leg (EmbeddedReference._leg_window). */
-static void leg_window(const rollbot_reference* r, long leg, long local, double* out) {
-    long first, end, i, j, node, count;
-    if (leg > r->legs - 1) leg = r->legs - 1;
-    first = r->starts[leg];
-    end = leg + 1 < r->legs ? r->starts[leg + 1] : r->columns;
-    count = end - first;
-    for (i = 0; i <= ROLLBOT_N; ++i) {
-        node = first + (local + i < count - 1 ? local + i : count - 1);
-        for (j = 0; j < 10; ++j) *out++ = r->Z[10 * node + j];
-    }
-    for (i = 0; i < ROLLBOT_N; ++i) {
-        node = first + (local + i < count - 1 ? local + i : count - 1);
-        *out++ = local + i < count ? r->U[node] : 0.0;
-    }
-    *out++ = r->stops[2 * leg];
-    *out++ = r->stops[2 * leg + 1];
-    *out++ = r->durations[leg];
-    *out++ = leg == r->legs - 1 ? 1.0 : 0.0;
-}
-
-int rollbot_step(rollbot_context* ctx, const rollbot_measurement* m, rollbot_command* command) {
-    long k = (long)ctx->mem[ROLLBOT_MEM_K];
-    long leg = (long)ctx->mem[ROLLBOT_MEM_SEGMENT];
-    long leg_k = (long)ctx->mem[ROLLBOT_MEM_SEGMENT_K];
-    leg_window(ctx->reference, leg, (k - leg_k) / ROLLBOT_EVERY, ctx->ref);
-    leg_window(ctx->reference, leg + 1, 0, ctx->ref + ROLLBOT_WINDOW_SIZE);
+/* rollbot_measure(mem, meas, k) -> (z, mem_next) */
+int rollbot_period_measure(rollbot_context* ctx, long k, const rollbot_measurement* m) {
     memcpy(ctx->meas, m, sizeof(ctx->meas));
+    ctx->k = (double)k;
+    ctx->solved = 0;
     ctx->arg[0] = ctx->mem;
     ctx->arg[1] = ctx->meas;
-    ctx->arg[2] = ctx->ref;
-    ctx->res[0] = &ctx->accel;
+    ctx->arg[2] = &ctx->k;
+    ctx->res[0] = ctx->z;
     ctx->res[1] = ctx->mem_next;
-    ctx->res[2] = &ctx->status;
-    if (rollbot_period(ctx->arg, ctx->res, ctx->iw, ctx->w, 0)) return -1;
+    if (rollbot_measure(ctx->arg, ctx->res, ctx->iw, ctx->work, 0)) return -1;
     memcpy(ctx->mem, ctx->mem_next, sizeof(ctx->mem));
-    command->accel = ctx->accel;
-    command->status = (int)ctx->status;
+    return 0;
+}
+
+/* rollbot_solve(mem, z, window) -> (w, lam_w, lam_g, ok, retried) */
+int rollbot_period_solve(rollbot_context* ctx, const double* window, int* ok) {
+    ctx->arg[0] = ctx->mem;
+    ctx->arg[1] = ctx->z;
+    ctx->arg[2] = window;
+    ctx->res[0] = ctx->w;
+    ctx->res[1] = ctx->lam_w;
+    ctx->res[2] = ctx->lam_g;
+    ctx->res[3] = &ctx->ok;
+    ctx->res[4] = &ctx->retried;
+    if (rollbot_solve(ctx->arg, ctx->res, ctx->iw, ctx->work, 0)) return -1;
+    ctx->solved = 1;
+    if (ok) *ok = ctx->ok != 0.0;
+    return 0;
+}
+
+/* rollbot_commit(mem, z, k, w, lam_w, lam_g, ok, late, solving, done, fallback_pid, pid_speed)
+ *   -> (accel, speed, by_speed, mem_next, event); without a solve this period, the memory's own solution */
+int rollbot_period_commit(rollbot_context* ctx, const rollbot_commit_inputs* in, rollbot_command* command) {
+    static const double zero = 0.0, one = 1.0;
+    int solved = ctx->solved;
+    ctx->arg[0] = ctx->mem;
+    ctx->arg[1] = ctx->z;
+    ctx->arg[2] = &ctx->k;
+    ctx->arg[3] = solved ? ctx->w : ctx->mem + ROLLBOT_MEM_W;
+    ctx->arg[4] = solved ? ctx->lam_w : ctx->mem + ROLLBOT_MEM_LAM_W;
+    ctx->arg[5] = solved ? ctx->lam_g : ctx->mem + ROLLBOT_MEM_LAM_G;
+    ctx->arg[6] = solved ? &ctx->ok : &zero;
+    ctx->arg[7] = solved ? &in->late : &zero;
+    ctx->arg[8] = solved ? &one : &zero;
+    ctx->arg[9] = &in->done;
+    ctx->arg[10] = &in->fallback_pid;
+    ctx->arg[11] = &in->pid_speed;
+    ctx->res[0] = &ctx->out[0];
+    ctx->res[1] = &ctx->out[1];
+    ctx->res[2] = &ctx->out[2];
+    ctx->res[3] = ctx->mem_next;
+    ctx->res[4] = &ctx->out[3];
+    if (rollbot_commit(ctx->arg, ctx->res, ctx->iw, ctx->work, 0)) return -1;
+    memcpy(ctx->mem, ctx->mem_next, sizeof(ctx->mem));
+    ctx->solved = 0;
+    command->accel = ctx->out[0];
+    command->speed = ctx->out[1];
+    command->by_speed = ctx->out[2] != 0.0;
+    command->event = (int)ctx->out[3];
+    command->mode = (int)ctx->mem[ROLLBOT_MEM_MODE];
     return 0;
 }

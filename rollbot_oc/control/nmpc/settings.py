@@ -47,6 +47,9 @@ class Horizon(Checked):
         One real-time iteration per period (``"rti"``), or IPOPT to convergence (``"ipopt"``).
     compiled : bool or None
         RTI: evaluate the linearisation as compiled C (``rollbot_oc.model.codegen``); None: when a compiler exists.
+    qp_max_iter : int
+        RTI: the most active-set iterations of one QP (``qrqp``), in [1, 100000]: a bound on a solve's work
+        where the active set cycles; a QP stopped there is judged, as any other, by its step's violation.
     """
 
     owner, group = "NMPC", "horizon"
@@ -55,6 +58,7 @@ class Horizon(Checked):
     substeps: int = number(1, 1, 10, integer=True)
     solver: str = choice("rti", "rti", "ipopt")
     compiled: bool | None = choice(None, None, True, False)
+    qp_max_iter: int = number(1000, 1, 100000, integer=True)
 
 
 @dataclass(frozen=True)
@@ -387,9 +391,10 @@ class NMPCSettings:
     @classmethod
     def embedded(cls) -> "NMPCSettings":
         """For a robot's processor: 25 intervals of 0.12 s with one RK4 step each (the same 3 s horizon),
-        3 failed solves before the fallback, and a filter that learns the tilt alone from the measured
-        attitude (``rollbot-oc export-c``)."""
-        return cls(horizon={"N": 25, "h": 0.12, "substeps": 1}, recovery={"max_failures": 3},
+        at most 100 active-set iterations per QP (a bounded worst case where the active set cycles), 3 failed
+        solves before the fallback, and a filter that learns the tilt alone from the measured attitude
+        (``rollbot-oc export-c``)."""
+        return cls(horizon={"N": 25, "h": 0.12, "substeps": 1, "qp_max_iter": 100}, recovery={"max_failures": 3},
                    filter={"learn": (), "attitude_gain": 1.0})
 
 

@@ -70,13 +70,13 @@ def tracking_problem(N: int, h: float, substeps: int = 2, torque_margin: float =
 
 @functools.lru_cache(maxsize=8)
 def _route(route: str, N: int, h: float, substeps: int, margins: tuple, constraints: tuple, kind: type,
-           compiled: bool):
+           compiled: bool, qp_max_iter: int = 1000):
     """The tracking problem's solver by ``route``, built once per horizon, margins, extra constraints and
     mission kind (``kind``, a ``Mission`` class: its terms are written once per kind)."""
     ocp = tracking_problem(N, h, substeps, *margins, constraints=constraints, mission=kind)
     if route == "rti":
         # qrqp: the QP solver CasADi generates as C with the step (``control.nmpc.period``)
-        return ocp.solver("rti", qp_solver="qrqp", compiled=compiled)
+        return ocp.solver("rti", qp_solver="qrqp", compiled=compiled, qp_options={"max_iter": qp_max_iter})
     return ocp.solver("ipopt", hessian="exact", max_iter=50, tol=1e-6,
                       options={"warm_start_init_point": "yes", "warm_start_bound_push": 1e-6,
                                "warm_start_mult_bound_push": 1e-6, "mu_init": 1e-4})
@@ -98,7 +98,7 @@ class _Tracking:
         margins = (s.limits.torque_margin, s.limits.normal_margin, s.limits.friction_margin, s.limits.speed_margin)
         self.route = _route(self.route_name, s.horizon.N, s.horizon.h, s.horizon.substeps, margins,
                             tuple(s.limits.constraints),
-                            type(self.mission), self.compiled)
+                            type(self.mission), self.compiled, s.horizon.qp_max_iter)
         ocp = self.route.transcription.ocp
         self.relax = RELAXABLE + tuple(c.name for c, at in ocp.constraints[-len(s.limits.constraints):]) \
             if s.limits.constraints else RELAXABLE

@@ -63,6 +63,43 @@ def _equal(a, b) -> bool:
     return bool(a == b)
 
 
+WALL_CLOCK = ("wall_time", "solve_time", "plan_time", "plan_solve_time", "step_time")  # metrics the wall clock decides
+
+
+def step_settings():
+    """The NMPC settings of the tests that run its step as an exported C library: the bundled step's 3 s horizon
+    in 10 intervals (each mission kind's step quick to build); plans quick to build and solve: one start per leg
+    on a 20-interval grid, no leg planned ahead, a circle's entry on a 0.5 s grid, the plan through gates on a
+    limited-memory Hessian.  One object for every such test, so that each kind's step library is compiled once
+    (the planner is not part of the step)."""
+    from rollbot_oc.control.nmpc import NMPCSettings
+    from rollbot_oc.control.nmpc.settings import PlannerSettings
+
+    planner = PlannerSettings()
+    return NMPCSettings(horizon={"N": 10, "h": 0.3}, entry={"interval": 0.5},
+                        planner={"starts": 1, "resumes": 0, "legs_ahead": 0, "fresh": 0,
+                                 "legs": replace(planner.legs, N=20),
+                                 "gates": replace(planner.gates, hessian="limited-memory")})
+
+
+def nmpc_metrics(problem, params=None, seed: int = 0, **options) -> dict:
+    """The metrics of the NMPC's run of ``problem`` (``make_controller("nmpc", problem, params, **options)``,
+    sensor noise ``seed``) without what the wall clock decides (``WALL_CLOCK`` keys, each plan's
+    ``solve_time``): what two runs of the same controller must give bit for bit."""
+    from rollbot_oc.scenarios.problem import make_controller, run_problem
+
+    controller = make_controller("nmpc", problem, params, **options)
+    return comparable(run_problem(problem, controller, seed=seed, show_progress=False).metrics)
+
+
+def comparable(metrics: dict) -> dict:
+    """A run's metrics (or its ``--json``) without what the wall clock decides (``nmpc_metrics``)."""
+    out = {k: v for k, v in metrics.items() if not k.startswith(WALL_CLOCK)}
+    if out.get("plans"):
+        out["plans"] = [{k: v for k, v in plan.items() if k != "solve_time"} for plan in out["plans"]]
+    return out
+
+
 @pytest.fixture(scope="session")
 def n_shape_runs(tmp_path_factory):
     """The bundled N-shape under the PID and the NMPC, seed 0, each run as ``compare`` (and ``rollbot-oc demo``)

@@ -19,6 +19,7 @@ from rollbot_oc.control.nmpc.tracking import tracking_problem
 from rollbot_oc.model.params import RollbotParams
 from rollbot_oc.scenarios.problem import run_problem
 from rollbot_oc.scenarios.bundled import load_bundled
+from shared import nmpc_metrics, step_settings
 
 def test_structured_linearisation_as_a_graph_is_the_numeric_one():
     """``StructuredLinearisation.symbolic`` (what the C export generates) gives the numeric call's values."""
@@ -178,7 +179,6 @@ def test_the_exported_step_is_the_nmpcs_step(tmp_path, capsys):
     library as its step (``run --controller c``) gives the run of the NMPC itself, key for key (the library's hash
     added), and a perturbed library (the filtered position moved 1 um) gives another run; a library exported for
     other settings is refused.  (A short horizon, to build quickly.)"""
-    from rollbot_oc.control.nmpc import NMPCSettings
     from rollbot_oc.control.nmpc.source import FLAGS, LIBRARY, MANIFEST
     from rollbot_oc.core.errors import ConfigError
     from rollbot_oc.scenarios.problem import make_controller
@@ -188,21 +188,16 @@ def test_the_exported_step_is_the_nmpcs_step(tmp_path, capsys):
     folder = tmp_path / "step"
     folder.mkdir()
     problem = load_bundled("circle_R065").with_duration(1.5)
-    small = NMPCSettings(horizon={"N": 10, "h": 0.3})  # the bundled step's 3 s horizon in 10 intervals: quick to build
+    small = step_settings()  # a 10-interval horizon, quick to build (the step test_c_controller compiles too)
     manifest = write_step(folder, problem, settings=small)
     (folder / "Makefile").write_text("CC ?= cc\n-include step.mk\n")
     assert (folder / LIBRARY).is_file()  # the NMPC's own build of this source; make rebuilds it (below)
     for name in ("rollbot_step.c", "rollbot_step.h", MANIFEST, "step.mk", LIBRARY):
         assert (folder / name).is_file(), name
     assert manifest["N"] == 10 and manifest["problem"] == "circle_R065"
-    wall = ("wall_time", "solve_time", "plan_time", "plan_solve_time", "step_time")
 
     def metrics(**options):
-        m = run_problem(problem, make_controller("nmpc", problem, settings=small, **options),
-                        show_progress=False).metrics
-        for plan in m.get("plans") or []:
-            plan.pop("solve_time", None)
-        return {k: v for k, v in m.items() if not k.startswith(wall)}
+        return nmpc_metrics(problem, settings=small, **options)
 
     nmpc, c = metrics(), metrics(step_library=folder)
     assert c.pop("library_sha256") == hashlib.sha256((folder / LIBRARY).read_bytes()).hexdigest()

@@ -277,7 +277,7 @@ def _cmd_run(args) -> int:
             folder, preset = _c_project(args, problem)
             controller = make_controller("nmpc", problem, **_nmpc_options(args, preset), step_library=folder)
         run = run_problem(problem, controller, seed=args.seed, show_progress=_show_progress(args),
-                          **(_nmpc_options(args) if args.controller == "nmpc" else {}))
+                          label=args.controller, **(_nmpc_options(args) if args.controller == "nmpc" else {}))
         metrics = run.metrics
         if out:
             _write_run(run, out)

@@ -365,7 +365,8 @@ class RunResult:
 
 def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: RollbotParams | None = None,
                 duration: float | None = None, show_progress: bool | None = None,
-                estimator: EstimatorSettings | None = None, kicks=(), **options) -> RunResult:
+                estimator: EstimatorSettings | None = None, kicks=(), label: str | None = None,
+                **options) -> RunResult:
     """Run a circle or waypoint problem in closed loop and compute its metrics.
 
     Parameters
@@ -387,6 +388,9 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
     estimator : EstimatorSettings, optional
         The filter's settings in the onboard sensing modes (``problem.sensing``);
         the filter believes in the controller's model of the robot.
+    label : str, optional
+        The run's name for its controller (``controller`` in the metrics, file names): by default the name
+        given, or the controller object's class name.
     **options
         Passed to ``make_controller``.
 
@@ -400,7 +404,7 @@ def run_problem(problem: Problem, controller="pid", *, seed: int = 0, params: Ro
         raise ConfigError(f"{problem.source}: open-loop problems have no controller; use run_open_loop")
     if duration is not None:
         problem = problem.with_duration(duration)
-    name = controller if isinstance(controller, str) else type(controller).__name__
+    name = label or (controller if isinstance(controller, str) else type(controller).__name__)
     ctrl = make_controller(controller, problem, params, **options) if isinstance(controller, str) else controller
     if problem.sensing.onboard:
         believed = params or problem.params.replace(slope=0.0)

@@ -85,14 +85,15 @@ def test_the_c_step_runs_the_nmpcs_run(name, step_folders):
 
 
 def test_run_controller_c_prints_the_nmpcs_json(tmp_path, capsys):
-    """Through the command line: ``export-c`` a circle (its step at the default settings), then ``run --json`` with
+    """Through the command line: ``export-c`` a circle (its step at the NMPC's settings, ``--settings nmpc``; its
+    recorded run the first 60 s, a prefix of the circle's, which is not a failure), then ``run --json`` with
     ``--controller nmpc`` and with ``--controller c --c-project`` that folder: the same JSON (wall-clock keys
     aside), the second naming its controller ``c`` and the library it ran."""
     from rollbot_oc.app.cli import main
     from rollbot_oc.control.nmpc.source import LIBRARY
 
     folder = tmp_path / "c"
-    assert main(["export-c", "--out", str(folder), "--problem", "circle_R065", "--json"]) == 0
+    assert main(["export-c", "--out", str(folder), "--problem", "circle_R065", "--settings", "nmpc", "--json"]) == 0
     exported = json.loads(capsys.readouterr().out)
     assert exported["step"]["N"] == 60 and (folder / LIBRARY).is_file()
 

@@ -8,11 +8,11 @@ The package is laid out by layer; a module imports only from its own layer or th
                 progress displays
 ``model``       parameters, equations of motion, rotations, code generation of CasADi Functions
 ``view``        text with units, figures and animations (what a person reads and sees)
-``ocp``         the optimal-control layer: an OCP written once, transcribed and solved by a route
+``ocp``         the optimal-control layer: an OCP on any model, written once, transcribed and solved by a route
 ``simulation``  the plant, its sensors and the onboard estimation (EKF); the plant calls a controller
                 through ``control.protocol``
 ``analysis``    quasi-stable states, their stability, the design space, the open-loop experiments
-``planning``    minimum-time legs and orbit entries, plans through gates, their initial guesses
+``planning``    Rollbot's OCP model and limits, minimum-time legs and orbit entries, plans through gates
 ``missions``    what a run must achieve (circle, waypoints, gates, open loop) and how it is scored
 ``control``     the controllers: the protocol, the paper's PID and waypoint layer, the NMPC
 ``scenarios``   scenario files, the bundled scenarios, seeded random courses, minimum-time bounds
@@ -23,6 +23,9 @@ The package is laid out by layer; a module imports only from its own layer or th
 Older module paths (``rollbot_oc.simulate``, ``rollbot_oc.params``, ``rollbot_oc.problems``, ...) stay
 importable: ``MOVED`` maps each to the module that holds its contents now, and an import of an old path
 returns that module (the same object, so a name patched through either path is patched for both).
+``MOVED_NAMES`` does the same for single names that moved out of a module that stays (``rollbot_oc.ocp``'s
+``rollbot_model``, now above the generic optimal-control layer): the module's ``__getattr__`` asks
+``moved_name``, which imports the name from where it lives now, when it is first used.
 ``from rollbot_oc import RollbotParams`` (and the other names in ``EXPORTS``) imports the name's module
 on first use, so that ``import rollbot_oc`` stays cheap.
 """
@@ -69,6 +72,13 @@ MOVED = {
     "rollbot_oc.bounds": "rollbot_oc.scenarios.bounds",
     "rollbot_oc.cli": "rollbot_oc.app.cli",
     "rollbot_oc.report": "rollbot_oc.app.report",
+    "rollbot_oc.ocp.constraints": "rollbot_oc.planning.rollbot",
+}
+
+# old dotted path of a name in a module that stays -> the module that holds the name now
+MOVED_NAMES = {
+    "rollbot_oc.ocp.rollbot_model": "rollbot_oc.planning.rollbot",
+    "rollbot_oc.ocp.model.rollbot_model": "rollbot_oc.planning.rollbot",
 }
 
 # public name -> the module it comes from (``from rollbot_oc import name``)
@@ -119,6 +129,15 @@ class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 # (an editable install of another checkout, a leftover .py from an older version).
 if not any(isinstance(finder, _MovedModules) for finder in sys.meta_path):
     sys.meta_path.insert(0, _MovedModules())
+
+
+def moved_name(module: str, name: str):
+    """The value of ``module.name`` where ``name`` moved to (``MOVED_NAMES``), for a module's ``__getattr__``;
+    ``AttributeError`` as Python's own if the name never was there."""
+    where = MOVED_NAMES.get(f"{module}.{name}")
+    if where is None:
+        raise AttributeError(f"module {module!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(where), name)
 
 
 def __getattr__(name: str):

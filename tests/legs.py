@@ -1,7 +1,8 @@
 """The rest-to-rest leg the optimal-control tests share, built with the OCP layer's own vocabulary."""
 
 from rollbot_oc.ocp import OCP
-from rollbot_oc.ocp.constraints import at_rest, driving_speed, motor_accel, motor_torque, no_jump, no_slide
+from rollbot_oc.planning.rollbot import (at_rest, driving_speed, motor_accel, motor_torque, no_jump, no_slide,
+                                        rollbot_ocp)
 
 
 def leg_problem(N: int, T, substeps: int = 2, minimum_time: bool = False, effort: float = 1.0) -> OCP:
@@ -20,7 +21,7 @@ def leg_problem(N: int, T, substeps: int = 2, minimum_time: bool = False, effort
     effort : float
         Weight of the least-squares motor effort, ``(accel / max_accel)^2`` integrated over time.
     """
-    ocp = OCP(N=N, T=T, substeps=substeps)
+    ocp = rollbot_ocp(N=N, T=T, substeps=substeps)
     x, u = ocp.state, ocp.control
     ocp.initial_state()
     goal = ocp.parameter("goal", 2)

@@ -1,8 +1,8 @@
 """The docs hold: every Python block of the README and of the docs' pages runs, and the site builds.
 
 * Code blocks: the Python blocks of each page run one after the other in one namespace, in a temporary folder,
-  as a reader would paste them (a block that is not meant to run is written with another language: ``sh``,
-  ``text``, ``toml``). The OCP guide's "Write your own OCP" block is left to ``test_readme_ocp.py``, which runs
+  as a reader would paste them (a block that is not meant to run as Python is written with another language:
+  ``sh``, whose commands ``test_doc_commands.py`` handles, ``text``, ``toml``). The OCP guide's "Write your own OCP" block is left to ``test_readme_ocp.py``, which runs
   it and checks what its text says.
 * The build: ``sphinx-build -W --keep-going`` (every warning an error, which includes every link between pages
   that does not resolve) into a temporary folder, with the notebooks rendered without running them

@@ -194,3 +194,21 @@ def test_no_history_in_the_code(path):
     hits = [f"{number}: {line.strip()}" for number, line in enumerate(path.read_text().splitlines(), 1)
             if HISTORY.search(line)]
     assert hits == []
+
+
+# What the generic optimal-control layer may import of the package: the plumbing, itself, and the code generation
+# of CasADi Functions (``model.codegen``: no physics, it compiles any Function).  Any system, Rollbot's included,
+# comes in as the ``OCPModel`` it is given.
+OCP_MAY_IMPORT = ("rollbot_oc.core", "rollbot_oc.ocp", "rollbot_oc.model.codegen")
+
+
+def test_the_ocp_layer_knows_no_particular_system():
+    """Nothing under ``rollbot_oc/ocp`` imports Rollbot's model (``model.dynamics``, ``model.params``, ...),
+    the planning, the control or anything above."""
+    assert "rollbot_oc.ocp.problem" in GRAPH and "rollbot_oc.ocp.routes.sqp" in GRAPH
+    found = [f"{module}:{line} imports {target}" for module, targets in GRAPH.items()
+             if module == "rollbot_oc.ocp" or module.startswith("rollbot_oc.ocp.")
+             for target, line in targets.items()
+             if target != "rollbot_oc" and not any(target == allowed or target.startswith(allowed + ".")
+                                                   for allowed in OCP_MAY_IMPORT)]
+    assert found == []

@@ -744,7 +744,7 @@ def test_one_constraint_reaches_every_problem_of_the_nmpc():
     from rollbot_oc.control.nmpc.supervisors.stops import _rest_to_rest
     from rollbot_oc.control.nmpc.tracking import RTISolver
     from rollbot_oc.model.dynamics import rest_state, to_reduced
-    from rollbot_oc.ocp.constraints import position_box
+    from rollbot_oc.planning.rollbot import position_box
 
     lower, upper = np.array([-0.35, -0.35]), np.array([1.25, 1.25])
     # the tracking problem on CasADi's virtual machine: this test reads its bounds and one relaxed solve, and
@@ -778,11 +778,11 @@ def test_one_constraint_reaches_every_problem_of_the_nmpc():
 
 def test_the_tightest_of_two_bounds_of_one_entry_holds():
     """Two simple bounds of the same state: the tighter one, whichever comes first."""
-    from rollbot_oc.ocp import OCP, bounded
-    from rollbot_oc.ocp.constraints import driving_speed
+    from rollbot_oc.ocp import bounded
+    from rollbot_oc.planning.rollbot import driving_speed, rollbot_ocp
 
     for order in (1, -1):
-        ocp = OCP(N=3, T=1.0)
+        ocp = rollbot_ocp(N=3, T=1.0)
         ocp.subject_to(*[driving_speed(ocp, 0.5), bounded(-8.0, ocp.state.theta_dot, 8.0, "loose")][::order])
         tr = ocp.solver("ipopt").transcription
         lbw, ubw = tr.bounds(tr.parameter_vector({"p": RollbotParams().vector()}))

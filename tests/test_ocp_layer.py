@@ -10,8 +10,9 @@ import pytest
 from rollbot_oc.planning.min_time import quasi_stable_guess
 from rollbot_oc.model.dynamics import REDUCED, RollbotModel, from_reduced, rest_state, to_reduced
 from rollbot_oc.core.errors import ConfigError
-from rollbot_oc.ocp import OCP, FreeTime, bounded
-from rollbot_oc.ocp.constraints import at_rest, driving_speed, motor_accel, motor_torque, no_jump, no_slide
+from rollbot_oc.ocp import OCP, FreeTime, OCPModel, bounded
+from rollbot_oc.planning.rollbot import (at_rest, driving_speed, motor_accel, motor_torque, no_jump, no_slide,
+                                        rollbot_model, rollbot_ocp)
 from rollbot_oc.model.params import RollbotParams
 from rollbot_oc.simulation.plant import simulate
 
@@ -92,7 +93,7 @@ def test_constraint_jacobian_agrees_with_finite_differences(leg):
 
 
 def test_relations_become_constraints():
-    ocp = OCP(N=3, T=1.0)
+    ocp = rollbot_ocp(N=3, T=1.0)
     x = ocp.state
     ocp.subject_to(x.theta_dot <= 2.0, 1.0 >= x.omega[0], x.position == ocp.parameter("goal", 2), at="end")
     (le, _), (ge, _), (eq, _) = ocp.constraints
@@ -104,12 +105,13 @@ def test_relations_become_constraints():
 
 
 @pytest.mark.parametrize("build, message", [
-    (lambda: OCP(N=0), "N = 0"),
-    (lambda: OCP(N=(5, 5), T=(1.0,)), "2 phases"),
-    (lambda: OCP(N=5, T=-1.0), "T = -1.0"),
+    (lambda: OCP(None, N=5), "model = None must be an OCPModel"),
+    (lambda: rollbot_ocp(N=0), "N = 0"),
+    (lambda: rollbot_ocp(N=(5, 5), T=(1.0,)), "2 phases"),
+    (lambda: rollbot_ocp(N=5, T=-1.0), "T = -1.0"),
     (lambda: FreeTime(guess=5.0, lower=6.0), "FreeTime"),
-    (lambda: OCP(N=5, T=1.0).subject_to(OCP(N=5).control.accel <= 1, at="middle"), "at = 'middle'"),
-    (lambda: OCP(N=5, T=1.0).solver("magic"), "solver route"),
+    (lambda: rollbot_ocp(N=5, T=1.0).subject_to(rollbot_ocp(N=5).control.accel <= 1, at="middle"), "at = 'middle'"),
+    (lambda: rollbot_ocp(N=5, T=1.0).solver("magic"), "solver route"),
 ])
 def test_bad_descriptions_are_one_clear_error(build, message):
     with pytest.raises(ConfigError, match=message):
@@ -117,7 +119,7 @@ def test_bad_descriptions_are_one_clear_error(build, message):
 
 
 def test_missing_parameter_is_named():
-    ocp = OCP(N=3, T=1.0)
+    ocp = OCP(rollbot_model(), N=3, T=1.0)
     ocp.initial_state()
     with pytest.raises(ConfigError, match="'x0'"):
         ocp.solver("ipopt").solve(p=RollbotParams().vector())
@@ -181,7 +183,7 @@ def test_qps_through_buffers_equal_qps_called_by_name():
 
 
 def test_stage_parameters_take_a_column_per_node_and_refuse_a_transposed_array():
-    ocp = OCP(N=4, T=1.0)
+    ocp = rollbot_ocp(N=4, T=1.0)
     reference = ocp.stage_parameter("reference", 2)
     ocp.add_least_squares(ocp.state.position - reference)
     tr = ocp.solver("ipopt").transcription
@@ -193,3 +195,68 @@ def test_stage_parameters_take_a_column_per_node_and_refuse_a_transposed_array()
                           np.tile([1.0, 2.0], 5))
     with pytest.raises(ConfigError, match="reference.*shape"):
         tr.parameter_vector({"p": PARAMS.vector(), "reference": values.T})
+
+
+# -- the layer on a system it was not written for ------------------------------------------------------------------
+
+def double_integrator() -> OCPModel:
+    """``s'' = a / m``: position ``s`` (m), velocity ``v`` (m/s), force ``a`` (N), mass ``m`` (kg) a parameter."""
+    s, v, a, m = (ca.SX.sym(name) for name in ("s", "v", "a", "m"))
+    return OCPModel.ode("double_integrator", ca.vertcat(s, v), a, ca.vertcat(v, a / m), m)
+
+
+@pytest.mark.parametrize("route", ["ipopt", "sqp"])
+def test_the_layer_solves_a_system_it_was_not_written_for(route):
+    """Least effort from rest at 0 to rest at 1 m in 1 s: the continuous optimum is ``s = 3 t^2 - 2 t^3``,
+    ``a = m (6 - 12 t)``, effort ``0.5 int a^2 dt = 6 m^2``.  Held constant on ``N`` intervals of ``h`` (and
+    integrated exactly: RK4 is exact on this quadratic-in-time motion), the optimum is that line at the
+    intervals' midpoints ``t_k`` times ``1 / (1 - h^2)`` (the two end conditions fix both coefficients of a
+    control linear in ``t_k``, which the optimality conditions ask for), effort ``6 m^2 / (1 - h^2)``."""
+    N, mass = 20, 2.0
+    h = 1.0 / N
+    model = double_integrator()
+    ocp = OCP(model, N=N, T=1.0)
+    assert (model.state_names, model.control_names, model.parameter_names) == (("s", "v"), ("a",), ("m",))
+    ocp.initial_state()
+    ocp.add_least_squares(ocp.control.a)
+    ocp.subject_to(ocp.state.s == 1.0, ocp.state.v == 0.0, at="end")
+    sol = ocp.solver(route).solve(x0=[0.0, 0.0], p=[mass])
+    midpoints = (np.arange(N) + 0.5) * h
+    assert np.abs(sol.controls[0] - mass * (6 - 12 * midpoints) / (1 - h ** 2)).max() < 1e-6
+    assert sol.cost == pytest.approx(6 * mass ** 2 / (1 - h ** 2), rel=1e-8)
+    t = sol.times
+    assert np.abs(sol.states[0] - (3 * t ** 2 - 2 * t ** 3)).max() < h ** 2   # the cubic, to O(h^2)
+    # the velocity, the integral of that line, is the continuous one (scaled) at the nodes
+    assert np.abs(sol.states[1] - (6 * t - 6 * t ** 2) / (1 - h ** 2)).max() < 1e-8
+    assert np.abs(sol.value(ocp.params.m * ocp.state.v)[0, -1]) < 1e-8       # named parameters, at rest at the end
+
+
+def test_a_model_is_checked_and_names_its_parts():
+    model = double_integrator()
+    ocp = OCP(model, N=2, T=1.0)
+    assert set(vars(ocp.state)) == {"s", "v"} and set(vars(ocp.control)) == {"a"}
+    assert ca.is_equal(ocp.params.vector, ocp.p)
+    grouped = OCPModel("grouped", model.f, ("s", "v"), ("a",), ("m",), state_parts={"all": slice(0, 2)},
+                       control_parts={"force": 0})
+    ocp = OCP(grouped, N=2, T=1.0)
+    assert ocp.state.all.numel() == 2 and ca.is_equal(ocp.control.force, ocp.u[0])
+    for build, message in [
+            (lambda: OCPModel("m", model.f, ("s",), ("a",), ("m",)), "sizes"),
+            (lambda: OCPModel("m", model.f, ("s", "s"), ("a",), ("m",)), "repeat"),
+            (lambda: OCPModel("m", model.f, ("s", "v"), ("a",), ("m",), state_parts={"v": 0}), "not the state"),
+            (lambda: OCPModel("m", model.f, ("s", "v"), ("a",), ("m",), state_parts={"far": 2}), "index")]:
+        with pytest.raises(ConfigError, match=message):
+            build()
+
+
+def test_old_paths_of_the_rollbot_model_and_limits_still_import():
+    """``rollbot_oc.ocp.rollbot_model`` and ``rollbot_oc.ocp.constraints`` moved above the generic layer
+    (``rollbot_oc.MOVED_NAMES``, ``MOVED``): the same objects through the old paths."""
+    import rollbot_oc.planning.rollbot as rollbot
+    from rollbot_oc.ocp import rollbot_model as old_model
+    from rollbot_oc.ocp.constraints import robot_limits as old_limits
+
+    assert old_model is rollbot.rollbot_model and old_limits is rollbot.robot_limits
+    with pytest.raises(AttributeError, match="no attribute 'nothing'"):
+        import rollbot_oc.ocp
+        rollbot_oc.ocp.nothing

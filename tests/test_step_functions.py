@@ -13,7 +13,7 @@ from rollbot_oc.control.nmpc.settings import NMPCSettings
 from rollbot_oc.control.nmpc.supervisors import supervisor_for
 from rollbot_oc.model.dynamics import REDUCED, to_reduced
 from rollbot_oc.core.fastcall import FastFunction
-from rollbot_oc.ocp import rollbot_model
+from rollbot_oc.planning.rollbot import rollbot_model
 from rollbot_oc.model.params import RollbotParams
 from rollbot_oc.scenarios.problem import load_problem
 

@@ -1,1 +1,2 @@
-"""Plumbing every layer uses: errors and exit codes, checked settings, reproducible arithmetic, fast calls, files."""
+"""Plumbing every layer uses: errors and exit codes, checked settings, reproducible arithmetic, the RK4
+integrator, fast calls, files."""

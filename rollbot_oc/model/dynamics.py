@@ -49,6 +49,7 @@ import casadi as ca
 import numpy as np
 
 from rollbot_oc.model.params import NP, TILT, ParamView, RollbotParams
+from rollbot_oc.core.integration import rk4
 from rollbot_oc.core.reproducible import dot, matmul, norm
 from rollbot_oc.model.rotations import (
     matrix_to_quat_np, quat_derivative, quat_multiply, quat_multiply_np, quat_to_matrix, rot_y_np, rot_z_np,
@@ -229,21 +230,6 @@ def motor_speed_clip(a, theta_dot, max_speed, dt):
     """Motor acceleration ``a`` (rad/s^2) clipped so that a period ``dt`` (s) held from driving speed
     ``theta_dot`` ends within ``+-max_speed`` (rad/s): the motor driver's speed limit (CasADi)."""
     return ca.fmin(ca.fmax(a, (-max_speed - theta_dot) / dt), (max_speed - theta_dot) / dt)
-
-
-def rk4(rhs, x, h, substeps: int, *args):
-    """``substeps`` classical Runge-Kutta steps of ``x' = rhs(x, *args)`` over a time ``h`` (symbolic or numeric).
-
-    The arguments ``args`` (input, parameters, ...) are held over the whole interval.
-    """
-    step = h / substeps
-    for _ in range(substeps):
-        k1 = rhs(x, *args)
-        k2 = rhs(x + step / 2 * k1, *args)
-        k3 = rhs(x + step / 2 * k2, *args)
-        k4 = rhs(x + step * k3, *args)
-        x = x + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return x
 
 
 @dataclass(frozen=True)

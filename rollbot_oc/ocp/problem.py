@@ -2,17 +2,15 @@
 
 ::
 
-    ocp = OCP(N=40, T=FreeTime(guess=4.0))          # Rollbot's pendulum-frame model by default
-    x, u, P = ocp.state, ocp.control, ocp.params    # named parts; P is a ParamView of the model parameters
+    ocp = OCP(model, N=40, T=FreeTime(guess=4.0))   # model: an OCPModel (the dynamics and their names)
+    x, u, P = ocp.state, ocp.control, ocp.params    # named parts, by the model's names
     goal = ocp.parameter("goal", 2)
     ocp.initial_state()                             # x(0) = parameter "x0"
     ocp.minimize_time()
-    ocp.add_cost(1e-3 * u.accel**2)                 # integral over the horizon
-    ocp.subject_to(motor_torque(ocp, 0.9), no_jump(ocp, 0.1), no_slide(ocp, 0.95), driving_speed(ocp, 0.98),
-                   motor_accel(ocp))                # rollbot_oc.ocp.constraints
-    ocp.subject_to(x.position == goal, at="end")
-    ocp.subject_to(at_rest(ocp), at="end")
-    solution = ocp.solver("ipopt").solve(x0=z0, goal=[0, 1.2], p=params.vector())
+    ocp.add_cost(1e-3 * u.a**2)                     # integral over the horizon
+    ocp.subject_to(bounded(-1, u.a, 1))             # a path constraint
+    ocp.subject_to(x.s == goal, at="end")
+    solution = ocp.solver("ipopt").solve(x0=z0, goal=1.0, p=model_parameters)
 
 Expressions are CasADi SX in the symbols of one stage: ``ocp.x`` (states),
 ``ocp.u`` (controls), ``ocp.p`` (model parameters), the problem's own
@@ -28,23 +26,22 @@ joined by continuity of the state; a multi-stop motion plans every leg with
 one problem.
 
 Every route (``ocp.solver(name)``) solves this one description; see
-``rollbot_oc.ocp.routes``.
+``rollbot_oc.ocp.routes``.  The layer knows a system only through the model it is given; Rollbot's model,
+its named limits and ``rollbot_ocp`` (an ``OCP`` of Rollbot) are in ``rollbot_oc.planning.rollbot``.
 """
 
 from __future__ import annotations
 
 import math
-from types import SimpleNamespace
 
 import casadi as ca
 import numpy as np
 
 from rollbot_oc.core.errors import ConfigError
-from rollbot_oc.ocp.model import OCPModel, rollbot_model
+from rollbot_oc.ocp.model import OCPModel
 from rollbot_oc.ocp.routes import make_route
 from rollbot_oc.ocp.terms import Constraint, FreeTime, _from_relation, bounded
 from rollbot_oc.ocp.transcription import Transcription
-from rollbot_oc.model.params import ParamView
 
 __all__ = ["OCP", "FreeTime", "Constraint", "bounded"]
 
@@ -69,18 +66,21 @@ class OCP:
 
     Parameters
     ----------
+    model : OCPModel
+        The dynamics, with the names of the states, controls and parameters.
     N : int or sequence of int
         Shooting intervals of each phase.
     T : float, FreeTime, or a sequence of them
         Duration of each phase, s: fixed (a number) or free (``FreeTime``).
-    model : OCPModel, optional
-        The dynamics; ``rollbot_model()`` (Rollbot in the pendulum frame) by default.
     substeps : int
         RK4 steps per shooting interval.
     """
 
-    def __init__(self, N=40, T=None, model: OCPModel | None = None, substeps: int = 2):
-        self.model = model or rollbot_model()
+    def __init__(self, model: OCPModel, N=40, T=None, substeps: int = 2):
+        if not isinstance(model, OCPModel):
+            raise ConfigError(f"OCP: model = {model!r} must be an OCPModel (the dynamics and the names of its "
+                              "states, controls and parameters)")
+        self.model = model
         Ns = tuple(N) if isinstance(N, (list, tuple)) else (N,)
         Ts = tuple(T) if isinstance(T, (list, tuple)) else (T if T is not None else FreeTime(),) * len(Ns)
         if len(Ts) != len(Ns):
@@ -98,11 +98,9 @@ class OCP:
         self.x = ca.SX.sym("x", m.nx)
         self.u = ca.SX.sym("u", m.nu)
         self.p = ca.SX.sym("p", m.np)
-        s = m.slices
-        self.state = SimpleNamespace(**{name: self.x[getattr(s, name)] for name in
-                                        ("position", "quaternion", "omega", "theta_dot", "velocity")})
-        self.control = SimpleNamespace(accel=self.u[0])
-        self.params = ParamView(self.p)
+        self.state = m.named_states(self.x)
+        self.control = m.named_controls(self.u)
+        self.params = m.named_parameters(self.p)
         self.parameters: dict[str, ca.SX] = {}
         self.stage_parameters: dict[str, ca.SX] = {}
         self.fixed_start = False  # x(0) given (``initial_state``)
@@ -180,7 +178,7 @@ class OCP:
 
     # -- constraints ----------------------------------------------------------------------------
     def subject_to(self, *constraints, at="path", name: str | None = None, soft: float | None = None):
-        """Add constraints: ``Constraint`` objects (e.g. from ``rollbot_oc.ocp.constraints``) or
+        """Add constraints: ``Constraint`` objects (e.g. Rollbot's limits, ``rollbot_oc.planning.rollbot``) or
         SX relations (``expr <= c``, ``expr == goal``), applied ``at`` a place (see module doc).
 
         ``soft`` makes them soft with that L1 penalty weight (see ``Constraint``).

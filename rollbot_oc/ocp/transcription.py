@@ -25,8 +25,8 @@ kept apart for the Gauss-Newton routes.
 
 Simple bounds.  A hard path constraint whose every row is affine in a
 single state or control, ``lower <= c(p) x_i + e(p) <= upper`` with ``c``
-and ``e`` functions of the parameters only (the driving-speed and motor
-limits of ``rollbot_oc.ocp.constraints``, a position box), becomes a bound
+and ``e`` functions of the parameters only (a speed or a control within a
+limit the parameters give, a position box), becomes a bound
 on that entry of ``w`` instead of a row of ``g`` (as acados' ``idxbx`` and
 ``idxbu``): QP solvers treat bounds separately and more robustly.  The bounds
 then depend on the parameters: ``Transcription.bounds(par)``.

@@ -1,1 +1,2 @@
-"""Planning on the optimal-control layer: minimum-time legs, orbit entries and plans through gates."""
+"""Planning on the optimal-control layer: Rollbot's model and limits on it, minimum-time legs, orbit entries and
+plans through gates."""

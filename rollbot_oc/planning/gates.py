@@ -17,8 +17,8 @@ import functools
 import numpy as np
 
 from rollbot_oc.planning.min_time import OCPSettings, Plan, SolveFailed, quasi_stable_guess
-from rollbot_oc.ocp import OCP, FreeTime
-from rollbot_oc.ocp.constraints import robot_limits
+from rollbot_oc.ocp import FreeTime
+from rollbot_oc.planning.rollbot import robot_limits, rollbot_ocp
 from rollbot_oc.model.params import TILT, RollbotParams
 
 __all__ = ["GatePlan", "plan_gates", "GATE_INTERVALS"]
@@ -43,8 +43,8 @@ def _gate_route(count: int, settings: OCPSettings, constraints: tuple = ()):
     """The ipopt route of the problem through ``count`` gates (built once per count, settings and extra
     constraints, functions of the ``OCP`` as ``NMPCSettings.constraints``)."""
     s = settings
-    ocp = OCP(N=[GATE_INTERVALS] * count, T=[FreeTime(guess=2.0, lower=0.1, upper=s.T_max)] * count,
-              substeps=s.substeps)
+    ocp = rollbot_ocp(N=[GATE_INTERVALS] * count, T=[FreeTime(guess=2.0, lower=0.1, upper=s.T_max)] * count,
+                      substeps=s.substeps)
     x, u = ocp.state, ocp.control
     ocp.initial_state()
     gates = ocp.parameter("gates", 2 * count)

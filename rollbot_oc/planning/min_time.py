@@ -12,7 +12,7 @@ Every problem is an ``OCP`` of the optimal-control layer (``rollbot_oc.ocp``),
 the one description the NMPC's tracking problem is also written in: the
 reduced (pendulum-frame, 10-state) model, the motor acceleration piecewise
 constant on ``N`` intervals of a free (or fixed) duration, and the named
-limits of ``rollbot_oc.ocp.constraints`` with the margins of ``OCPSettings``:
+limits of ``planning.rollbot`` with the margins of ``OCPSettings``:
 driving speed within ``speed_margin * max_speed``, motor acceleration within
 ``accel_margin * max_accel``, motor torque within ``torque_margin *
 max_torque``, normal force at least ``normal_margin`` times the weight (no
@@ -43,7 +43,7 @@ from rollbot_oc.model.params import PARAM_INDEX, TILT, RollbotParams
 from rollbot_oc.analysis.quasi_stable import RadiusMap, quasi_stable_state
 from rollbot_oc.model.rotations import quat_multiply
 from rollbot_oc.ocp import OCP, FreeTime, bounded
-from rollbot_oc.ocp.constraints import at_rest, robot_limits
+from rollbot_oc.planning.rollbot import at_rest, robot_limits, rollbot_ocp
 from rollbot_oc.planning.guesses import orbit_guess, orbit_phase, quasi_stable_guess, quasi_stable_guesses
 from rollbot_oc.planning.plan import Plan, SolveFailed, orbit_state
 
@@ -110,7 +110,7 @@ class _MinTimeOCP:
     """What the minimum-time problems share, written on the optimal-control layer (``rollbot_oc.ocp``).
 
     Each problem is one ``OCP``: minimum time plus a little motor effort, the
-    named limits of ``rollbot_oc.ocp.constraints`` with the settings'
+    named limits of ``planning.rollbot`` with the settings'
     margins, the user's ``constraints``, and the end conditions of the
     subclass (``_end``).  It is transcribed and its IPOPT route built once per
     duration (``None``: free), and solved per leg with the robot's parameter
@@ -137,8 +137,8 @@ class _MinTimeOCP:
     def problem(self, duration: float | None = None) -> OCP:
         """The problem as an ``OCP``: free time in ``[T_min, T_max]``, or a fixed ``duration`` (s)."""
         s = self.settings
-        ocp = OCP(N=s.N, T=FreeTime(guess=min(max(5.0, s.T_min), s.T_max), lower=s.T_min, upper=s.T_max)
-                  if duration is None else float(duration), substeps=s.substeps)
+        ocp = rollbot_ocp(N=s.N, T=FreeTime(guess=min(max(5.0, s.T_min), s.T_max), lower=s.T_min, upper=s.T_max)
+                          if duration is None else float(duration), substeps=s.substeps)
         ocp.initial_state()
         ocp.minimize_time()
         ocp.add_cost(s.effort_weight * ocp.control.accel ** 2)

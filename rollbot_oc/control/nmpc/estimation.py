@@ -9,7 +9,7 @@ import math
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.ocp import rollbot_model
+from rollbot_oc.planning.rollbot import rollbot_model
 from rollbot_oc.model.dynamics import NZ, REDUCED
 from rollbot_oc.core.fastcall import FastFunction
 from rollbot_oc.model.params import NP, PARAM_INDEX, TILT, RollbotParams

@@ -103,7 +103,7 @@ class Limits(Checked):
         Largest tangential force, as a fraction of ``mu`` times the normal force.
     constraints : tuple of callables
         More path constraints, each a function of an ``OCP`` returning a ``Constraint``
-        (``rollbot_oc.ocp.constraints``), e.g. ``lambda ocp: position_box(ocp, (-0.1, -0.1), (1.3, 1.3))``:
+        (``rollbot_oc.planning.rollbot``), e.g. ``lambda ocp: position_box(ocp, (-0.1, -0.1), (1.3, 1.3))``:
         the legs, a circle's entry and the tracking problem all keep it (the tracking QP drops it, as the
         motor and contact limits, when no command can satisfy it).
     """

@@ -32,7 +32,7 @@ from rollbot_oc.control.nmpc.settings import NMPCSettings, TrackingWeights
 from rollbot_oc.model.dynamics import NZ
 from rollbot_oc.missions.base import Mission
 from rollbot_oc.ocp import OCP
-from rollbot_oc.ocp.constraints import robot_limits
+from rollbot_oc.planning.rollbot import robot_limits, rollbot_ocp
 from rollbot_oc.model.params import RollbotParams
 
 __all__ = ["tracking_problem", "TrackingSolver", "RTISolver", "RELAXABLE"]
@@ -53,7 +53,7 @@ def tracking_problem(N: int, h: float, substeps: int = 2, torque_margin: float =
     constraints, functions of the ``OCP`` giving a ``Constraint``
     (``NMPCSettings.constraints``).
     """
-    ocp = OCP(N=N, T=N * h, substeps=substeps)
+    ocp = rollbot_ocp(N=N, T=N * h, substeps=substeps)
     x, u = ocp.x, ocp.u
     ocp.initial_state()
     reference, accel_reference = ocp.stage_parameter("reference", NZ), ocp.stage_parameter("accel_reference")

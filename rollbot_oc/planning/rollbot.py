@@ -1,6 +1,12 @@
-"""Named constraints of Rollbot's optimal-control problems, written once for every route and controller.
+"""Rollbot on the optimal-control layer: its model (``rollbot_model``), an ``OCP`` of it (``rollbot_ocp``), and
+the named constraints of its problems, written once for every route and controller.
 
-Each function returns a ``Constraint`` in the stage symbols of an ``OCP``
+The layer below (``rollbot_oc.ocp``) is generic: it knows a system only through the ``OCPModel`` it is given.
+This module gives it Rollbot in the pendulum frame, its states named as ``ocp.state.position``,
+``.quaternion``, ``.omega``, ``.theta_dot``, ``.velocity``, its control as ``ocp.control.accel`` and its
+parameters as ``ocp.params.max_accel``, ... (``model.params.ParamView``).
+
+Each constraint function returns a ``Constraint`` in the stage symbols of an ``OCP`` of that model
 (states ``x``, control ``u``, model parameters ``p``), scaled to be
 dimensionless and of order one, which active-set QP solvers need.  The
 robot's limits come from the parameter vector ``p``, so one problem serves
@@ -9,22 +15,52 @@ any robot and floor; the margins are the fraction of a limit a plan may use.
 All of them are built from the same symbolic model as the plant
 (``dynamics.reduced_model``: motor torque, ground reaction), so the plant
 and the controllers agree on what a limit is.
+
+It sits in the planning layer, the lowest one above both the model (``rollbot_oc.model``) and the generic
+optimal-control layer: it needs both, and every user of a Rollbot OCP (planners, the NMPC, exports,
+scenarios) sits at or above it.
 """
 
 from __future__ import annotations
 
+import functools
+
 import casadi as ca
 import numpy as np
 
-from rollbot_oc.model.dynamics import NW, imbalance, reduced_model
-from rollbot_oc.ocp.problem import OCP, Constraint
+from rollbot_oc.model.dynamics import NU, NW, NZ, REDUCED, REDUCED_NAMES, imbalance, reduced_model
+from rollbot_oc.model.params import NP, PARAM_VECTOR_FIELDS, ParamView
+from rollbot_oc.ocp import OCP, Constraint, OCPModel
 
-__all__ = ["motor_torque", "driving_speed", "motor_accel", "no_jump", "no_slide", "position_box",
-           "circular_obstacle", "at_rest", "reaction_force", "robot_limits"]
+__all__ = ["rollbot_model", "rollbot_ocp", "motor_torque", "driving_speed", "motor_accel", "no_jump", "no_slide",
+           "position_box", "circular_obstacle", "at_rest", "reaction_force", "robot_limits"]
+
+
+@functools.lru_cache(maxsize=None)
+def rollbot_model() -> OCPModel:
+    """Rollbot in the pendulum frame (``dynamics.reduced_model``, 10 states), no external wrench.
+
+    States ``(x, y, pw, px, py, pz, wx, wy, wz, theta_dot)`` (m, unit quaternion of
+    the pendulum frame, rad/s, rad/s), with the parts of ``dynamics.REDUCED`` (``position``,
+    ``quaternion``, ``omega``, ``theta_dot``, ``velocity``); control the motor acceleration
+    ``theta_ddot`` (rad/s^2), also named ``accel``; parameters ``RollbotParams.vector()`` (the floor's tilt
+    included), read through ``ParamView``.
+    """
+    red = reduced_model()
+    z, u, p = ca.SX.sym("z", NZ), ca.SX.sym("u", NU), ca.SX.sym("p", NP)
+    f = ca.Function("rollbot", [z, u, p], [red.f(z, u, p, ca.DM.zeros(NW))], ["x", "u", "p"], ["xdot"])
+    parts = {name: getattr(REDUCED, name) for name in ("position", "quaternion", "omega", "theta_dot", "velocity")}
+    return OCPModel("rollbot", f, REDUCED_NAMES, ("theta_ddot",), PARAM_VECTOR_FIELDS, state_parts=parts,
+                    control_parts={"accel": 0}, parameter_view=ParamView)
+
+
+def rollbot_ocp(N=40, T=None, substeps: int = 2) -> OCP:
+    """An ``OCP`` of Rollbot (``rollbot_model()``): ``N`` intervals in ``T`` seconds (or ``FreeTime``), per
+    phase, ``substeps`` RK4 steps per interval (``OCP``)."""
+    return OCP(rollbot_model(), N=N, T=T, substeps=substeps)
+
 
 _W0 = ca.DM.zeros(NW)
-
-
 
 
 def reaction_force(x, u, p):

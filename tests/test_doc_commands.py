@@ -58,17 +58,16 @@ CHECK = {
     "rollbot-oc demo --quick --out report": "about a minute; test_report.py::test_demo_writes_the_report_folder",
     "rollbot-oc export-c --out rollbot_c": "records a closed-loop run and compiles the step and the replay project; "
                                            "test_export.py's c_export fixture",
-    "rollbot-oc export-c --problem circle_R065 --out step_c": "compiles the step, a minute on a cold machine; "
-                                                             "test_export.py::test_the_exported_step_is_the_nmpcs_step",
-    "rollbot-oc run circle_R065 --controller c --c-project step_c --duration 10 --json":
-        "needs the project the export above writes (compiled, a minute); test_export.py runs --controller c",
+    "rollbot-oc run n_shape --controller c --c-project rollbot_c --json":
+        "needs the project the export above writes and a whole N-shape run, minutes; "
+        "test_c_controller.py::test_run_controller_c_prints_the_nmpcs_json runs --controller c from export-c",
     "rollbot-oc campaign design --workers 1": "42 design points, minutes; test_campaign.py runs design campaigns",
     "rollbot-oc campaign problems/campaigns/robustness.toml": "200 closed-loop runs; test_campaign.py loads the spec",
 }
 
 ELSEWHERE = {
     "make -C rollbot_c check":
-        "tests/test_export.py::test_export_builds_replays_a_whole_run_and_closes_the_loop_through_c",
+        "tests/test_export.py::test_export_builds_and_replays_the_nmpcs_run",
 }
 
 NEEDS = re.compile(r"\bneeds:\s*(.+)$")

@@ -29,8 +29,11 @@ from shared import c_export, n_shape_pid_run, n_shape_runs, pid_circle_run  # no
 # the other modules that read them wait for them (test_firmware, which reads the export test_export makes,
 # comes later for the same reason).
 FIRST = ("test_nmpc.py", "test_notebooks.py", "test_export.py", "test_gates.py", "test_ocp.py")
+# and the other readers of the shared N-shape runs last: the second worker starts in the middle of the list, and
+# would otherwise wait there for the runs the first worker is computing
+LAST = ("test_mcap_log.py", "test_report.py")
 
 
 def pytest_collection_modifyitems(items):
-    rank = {name: i for i, name in enumerate(FIRST)}
+    rank = {name: i for i, name in enumerate(FIRST)} | {name: len(FIRST) + 1 + i for i, name in enumerate(LAST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(FIRST)))  # stable: the order within a module stays

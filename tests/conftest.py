@@ -25,13 +25,12 @@ from shared import c_export, n_shape_pid_run, n_shape_runs, pid_circle_run  # no
 
 # The modules of long closed loops, notebooks and C builds run first: pytest-xdist's work stealing then fills the
 # end of the run with short tests on both workers, instead of one worker finishing a long test alone.  test_nmpc
-# leads: its first test asks for the shared N-shape runs (tests/shared.py), so they are computed at once, before
-# the other modules that read them wait for them (test_firmware, which reads the export test_export makes,
-# comes later for the same reason).
+# leads: its first test asks for the shared N-shape runs (tests/shared.py), so they are computed at once, and
+# test_export, which makes the shared export, comes early too.
 FIRST = ("test_nmpc.py", "test_notebooks.py", "test_export.py", "test_gates.py", "test_ocp.py")
-# and the other readers of the shared N-shape runs last: the second worker starts in the middle of the list, and
-# would otherwise wait there for the runs the first worker is computing
-LAST = ("test_mcap_log.py", "test_report.py")
+# The other readers of those shared runs and of the export come last: the second worker starts in the middle of
+# the list, and would otherwise wait there for what the first worker is computing.
+LAST = ("test_firmware.py", "test_mcap_log.py", "test_report.py")
 
 
 def pytest_collection_modifyitems(items):

@@ -789,3 +789,16 @@ def test_the_tightest_of_two_bounds_of_one_entry_holds():
         speeds = tr.layout.states(np.arange(tr.layout.size))[9].astype(int)
         assert np.allclose(ubw[speeds], 0.5 * RollbotParams().max_speed)
         assert np.allclose(lbw[speeds], -0.5 * RollbotParams().max_speed)
+
+
+def test_settings_presets_by_name():
+    """``NMPCSettings.preset`` and ``preset_name`` are inverse on every preset (export-c writes the name into
+    step.json and run --controller c reads it back); other settings have no name, an unknown name is refused."""
+    from rollbot_oc.control.nmpc.settings import PRESETS
+    from rollbot_oc.core.errors import ConfigError
+
+    assert [NMPCSettings.preset(name).preset_name() for name in PRESETS] == list(PRESETS)
+    assert NMPCSettings.preset("embedded") == NMPCSettings.embedded() != NMPCSettings.preset("nmpc")
+    assert NMPCSettings(horizon={"N": 30}).preset_name() is None
+    with pytest.raises(ConfigError, match="valid are nmpc, embedded"):
+        NMPCSettings.preset("fast")

@@ -244,7 +244,7 @@ def _write_run(run, out) -> None:
     save_run_figures(run, out)
 
 
-SETTINGS_PRESETS = ("embedded", "nmpc")  # export-c --settings: NMPCSettings.embedded(), NMPCSettings()
+SETTINGS_PRESETS = ("embedded", "nmpc")  # export-c --settings: NMPCSettings.preset (control.nmpc.settings.PRESETS)
 
 
 def _nmpc_options(args, preset: str = "nmpc") -> dict:
@@ -253,7 +253,7 @@ def _nmpc_options(args, preset: str = "nmpc") -> dict:
         return {}
     from rollbot_oc.control.nmpc import NMPCSettings
 
-    settings = NMPCSettings.embedded() if preset == "embedded" else NMPCSettings()
+    settings = NMPCSettings.preset(preset)
     return {"settings": settings.replace(timing={"realtime": True}) if args.realtime else settings}
 
 
@@ -294,8 +294,7 @@ def _cmd_export_c(args) -> int:
     problem = load_scenario(args.problem, base=load_params(args.params))
     from rollbot_oc.control.nmpc import NMPCSettings
 
-    settings = NMPCSettings.embedded() if args.settings == "embedded" else NMPCSettings()
-    result = export_c(out.path, problem, settings=settings, seed=args.seed, show_progress=_show_progress(args),
+    result = export_c(out.path, problem, settings=NMPCSettings.preset(args.settings), seed=args.seed, show_progress=_show_progress(args),
                       target=args.target, preset=args.settings)
     done = None if (out.path / LIBRARY).is_file() else build(out.path, LIBRARY)
     if done is not None and done.returncode != 0:

@@ -180,7 +180,7 @@ def export_c(out, problem, params=None, settings: NMPCSettings | None = None, se
         raise ConfigError(f"export-c: horizon.solver = {s.horizon.solver!r}; the exported step is the real-time "
                           "iteration: valid is 'rti'")
     if preset is None:
-        preset = {NMPCSettings.embedded(): "embedded", NMPCSettings(): "nmpc"}.get(s)
+        preset = s.preset_name()
     folder = OutputFolder(out)  # checked and created before anything is computed
     nmpc = make_controller("nmpc", problem, params, settings=s)
     f = nmpc.step.functions

@@ -27,7 +27,7 @@ from rollbot_oc.planning.min_time import OCPSettings
 from rollbot_oc.core.errors import ConfigError
 
 __all__ = ["TrackingWeights", "Horizon", "Weights", "Limits", "FilterSettings", "Arrival", "Recovery",
-           "PlannerSettings", "EntrySettings", "Timing", "NMPCSettings"]
+           "PlannerSettings", "EntrySettings", "Timing", "NMPCSettings", "PRESETS"]
 
 
 # -- the groups ---------------------------------------------------------------------------------------------
@@ -396,6 +396,26 @@ class NMPCSettings:
         (``rollbot-oc export-c``)."""
         return cls(horizon={"N": 25, "h": 0.12, "substeps": 1, "qp_max_iter": 100}, recovery={"max_failures": 3},
                    filter={"learn": (), "attitude_gain": 1.0})
+
+    @classmethod
+    def preset(cls, name: str) -> "NMPCSettings":
+        """The preset ``name`` (``PRESETS``): ``"nmpc"`` the defaults, ``"embedded"`` ``embedded()``.
+
+        Raises
+        ------
+        ConfigError
+            If ``name`` is not a preset.
+        """
+        if name not in PRESETS:
+            raise ConfigError(f"NMPC settings preset {name!r}: valid are {', '.join(PRESETS)}")
+        return cls.embedded() if name == "embedded" else cls()
+
+    def preset_name(self) -> str | None:
+        """The name of the preset these settings are (``PRESETS``), or None."""
+        return next((name for name in PRESETS if self == self.preset(name)), None)
+
+
+PRESETS = ("nmpc", "embedded")  # NMPCSettings.preset: the defaults, and those for a robot's processor
 
 
 def _group_from(cls, name: str, values: dict, base=None):
